@@ -1,0 +1,15 @@
+// `qemflow simplify` — placeholder until its issue lands.
+#include "apps/qemflow/commands.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::cli {
+
+void add_simplify_command(CLI::App& root, Run& run) {
+  auto* cmd = root.add_subcommand("simplify", "(simplify: not implemented yet)");
+  cmd->allow_extras();
+  cmd->callback([&run] {
+    run = [] { throw Error(ErrorKind::internal, "'simplify' is not implemented yet"); };
+  });
+}
+
+}  // namespace qemflow::cli

@@ -1,0 +1,43 @@
+// The qemflow command line: a thin shell over the library. Exit codes (DESIGN.md §6):
+// 0 ok, 1 internal, 2 usage, 3 bad input, 4 resources, 5 cancelled.
+#include <cstdio>
+#include <exception>
+
+#include "apps/qemflow/commands.hpp"
+#include "util/error.hpp"
+
+int main(int argc, char** argv) {
+  CLI::App app{"qemflow: out-of-core QEM simplification of huge triangle meshes"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "qemflow 0.1.0");
+  qemflow::cli::Run run;
+  qemflow::cli::add_simplify_command(app, run);
+  qemflow::cli::add_gen_command(app, run);
+  qemflow::cli::add_compare_command(app, run);
+  qemflow::cli::add_info_command(app, run);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "qemflow: %s\n", e.what());
+    return qemflow::exit_code(qemflow::ErrorKind::usage);
+  }
+  try {
+    if (run) run();
+    return 0;
+  } catch (const qemflow::Error& e) {
+    std::fprintf(stderr, "qemflow: %s\n", e.what());
+    return qemflow::exit_code(e.kind());
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "qemflow: out of memory\n");
+    return qemflow::exit_code(qemflow::ErrorKind::resource);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "qemflow: internal error: %s\n", e.what());
+    return qemflow::exit_code(qemflow::ErrorKind::internal);
+  }
+}

@@ -1,0 +1,14 @@
+#pragma once
+// Byte sizes as users write them: "4G", "512M", "1.5G", "65536", "256MiB".
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+namespace qemflow::config {
+
+// Binary multiples (K = 1024). Throws Error(usage) naming the text on bad input.
+uint64_t parse_size(std::string_view text);
+// The inverse for messages: 268435456 -> "256 MiB", 1610612736 -> "1.5 GiB".
+std::string format_size(uint64_t bytes);
+
+}  // namespace qemflow::config

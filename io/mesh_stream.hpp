@@ -1,0 +1,73 @@
+#pragma once
+// Streaming mesh access. Readers hand out vertices and triangles in bounded batches
+// and never hold a whole file; writers accept them in batches and publish the file
+// only on commit(). Formats: PLY (ascii, binary LE/BE), OBJ, each optionally .zst,
+// chosen by file name.
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "util/geometry.hpp"
+
+namespace qemflow::io {
+
+enum class MeshFormat { ply_ascii, ply_binary_le, ply_binary_be, obj };
+std::string to_string(MeshFormat format);
+
+struct MeshInfo {
+  MeshFormat format = MeshFormat::ply_binary_le;
+  bool zstd = false;
+  std::optional<uint64_t> vertex_count;   // known up front for PLY, not for OBJ
+  std::optional<uint64_t> polygon_count;  // PLY face element count; triangles may be more
+};
+
+// One batch of a stream. Vertices and triangles arrive in file order; a triangle's
+// indices refer to vertices of earlier or the same batch (OBJ interleaves them; PLY
+// sends every vertex before the first triangle). Polygons are fan-triangulated, so
+// the global face id of a triangle is its position in the triangle stream.
+struct MeshBatch {
+  uint64_t first_vertex = 0;    // global index of vertices[0]
+  uint64_t first_triangle = 0;  // global id of triangles[0]
+  std::vector<Point> vertices;
+  std::vector<Triangle> triangles;
+  void clear() { vertices.clear(); triangles.clear(); }
+};
+
+class MeshReader {
+ public:
+  virtual ~MeshReader() = default;
+  virtual const MeshInfo& info() const = 0;
+  // Fills `batch` with up to about `max_elements` vertices plus triangles; returns
+  // false once the stream is exhausted (batch then empty). Throws Error(bad_input)
+  // naming file, byte offset or line, and problem.
+  virtual bool next(MeshBatch& batch, size_t max_elements = 1 << 16) = 0;
+  // Bytes consumed from the (possibly compressed) file so far, for progress.
+  virtual uint64_t bytes_read() const = 0;
+};
+
+std::unique_ptr<MeshReader> open_mesh_reader(const std::filesystem::path& path);
+
+struct WriteOptions {
+  bool double_precision = false;  // PLY vertex type: float (default) or double
+};
+
+// Counts are declared up front (PLY headers need them). Vertices must all be written
+// before triangles for PLY. Destroying a writer without commit() removes its
+// temporary file, so no half-written output is ever left at `path`.
+class MeshWriter {
+ public:
+  virtual ~MeshWriter() = default;
+  virtual void write_vertices(const Point* points, size_t count) = 0;
+  virtual void write_triangles(const Triangle* triangles, size_t count) = 0;
+  virtual void commit() = 0;
+  virtual uint64_t bytes_written() const = 0;
+};
+
+std::unique_ptr<MeshWriter> open_mesh_writer(const std::filesystem::path& path,
+                                             uint64_t vertex_count, uint64_t triangle_count,
+                                             const WriteOptions& options = {});
+
+}  // namespace qemflow::io
