@@ -22,6 +22,7 @@ struct MeshInfo {
   bool zstd = false;
   std::optional<uint64_t> vertex_count;   // known up front for PLY, not for OBJ
   std::optional<uint64_t> polygon_count;  // PLY face element count; triangles may be more
+  uint64_t file_size = 0;                 // bytes on disk (compressed size for .zst)
 };
 
 // One batch of a stream. Vertices and triangles arrive in file order; a triangle's
@@ -51,7 +52,9 @@ class MeshReader {
 std::unique_ptr<MeshReader> open_mesh_reader(const std::filesystem::path& path);
 
 struct WriteOptions {
-  bool double_precision = false;  // PLY vertex type: float (default) or double
+  bool double_precision = false;  // PLY vertex type: float (default) or double;
+                                  // OBJ: shortest text that rereads as the same float / double
+  int zstd_level = 3;             // for .zst outputs
 };
 
 // Counts are declared up front (PLY headers need them). Vertices must all be written

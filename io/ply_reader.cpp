@@ -1,0 +1,554 @@
+#include "io/ply_reader.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <charconv>
+#include <limits>
+#include <cmath>
+#include <cstring>
+#include <string_view>
+
+#include "io/byte_source.hpp"
+#include "io/ply_header.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::io {
+
+namespace {
+
+// A list may not make one record longer than this; a larger one is corrupt input
+// rather than a polygon anyone meant to write.
+constexpr size_t max_record_bytes = size_t{1} << 26;
+
+template <bool Swap>
+inline uint16_t load16(const char* p) {
+  uint16_t v;
+  std::memcpy(&v, p, 2);
+  if constexpr (Swap) v = __builtin_bswap16(v);
+  return v;
+}
+template <bool Swap>
+inline uint32_t load32(const char* p) {
+  uint32_t v;
+  std::memcpy(&v, p, 4);
+  if constexpr (Swap) v = __builtin_bswap32(v);
+  return v;
+}
+template <bool Swap>
+inline uint64_t load64(const char* p) {
+  uint64_t v;
+  std::memcpy(&v, p, 8);
+  if constexpr (Swap) v = __builtin_bswap64(v);
+  return v;
+}
+
+// Integer types only (the header checks that counts and indices are integers).
+template <bool Swap>
+inline int64_t load_integer(PlyType type, const char* p) {
+  switch (type) {
+    case PlyType::int8: return static_cast<int8_t>(*p);
+    case PlyType::uint8: return static_cast<uint8_t>(*p);
+    case PlyType::int16: return static_cast<int16_t>(load16<Swap>(p));
+    case PlyType::uint16: return load16<Swap>(p);
+    case PlyType::int32: return static_cast<int32_t>(load32<Swap>(p));
+    case PlyType::uint32: return load32<Swap>(p);
+    default: return 0;
+  }
+}
+
+template <bool Swap>
+inline double load_real(PlyType type, const char* p) {
+  switch (type) {
+    case PlyType::float32: return std::bit_cast<float>(load32<Swap>(p));
+    case PlyType::float64: return std::bit_cast<double>(load64<Swap>(p));
+    default: return static_cast<double>(load_integer<Swap>(type, p));
+  }
+}
+
+inline bool is_space(char c) { return c == ' ' || c == '\n' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
+
+bool all_finite(const Point& p) {
+  // Non-finite values give NaN here (inf - inf); finite ones give exactly 0.
+  double zero = (p[0] - p[0]) + (p[1] - p[1]) + (p[2] - p[2]);
+  return zero == 0;
+}
+
+class PlyReader final : public MeshReader {
+ public:
+  PlyReader(const std::filesystem::path& path, bool zstd) : source_(path, zstd) {
+    header_ = read_ply_header(source_);
+    line_ = header_.line_count + 1;
+    info_.format = header_.format;
+    info_.zstd = zstd;
+    info_.vertex_count = header_.elements[header_.vertex_element].count;
+    info_.polygon_count = header_.face_element ? header_.elements[*header_.face_element].count : 0;
+    info_.file_size = source_.file_size();
+    vertex_count_ = *info_.vertex_count;
+  }
+
+  const MeshInfo& info() const override { return info_; }
+  uint64_t bytes_read() const override { return source_.file_bytes_read(); }
+
+  bool next(MeshBatch& batch, size_t max_elements) override {
+    batch.clear();
+    batch.first_vertex = vertices_out_;
+    batch.first_triangle = triangles_out_;
+    size_t budget = max_elements == 0 ? 1 : max_elements;
+    while (element_ < header_.elements.size()) {
+      const PlyElement& element = header_.elements[element_];
+      if (done_ == element.count) {
+        ++element_;
+        done_ = 0;
+        continue;
+      }
+      if (batch.vertices.size() + batch.triangles.size() >= budget) break;
+      bool swap = header_.format == MeshFormat::ply_binary_be;
+      bool ascii = header_.format == MeshFormat::ply_ascii;
+      if (element_ == header_.vertex_element) {
+        size_t before = batch.vertices.size();
+        if (ascii) ascii_vertices(budget, batch);
+        else if (swap) binary_vertices<true>(budget, batch);
+        else binary_vertices<false>(budget, batch);
+        vertices_out_ += batch.vertices.size() - before;
+      } else if (header_.face_element && element_ == *header_.face_element) {
+        size_t before = batch.triangles.size();
+        if (ascii) ascii_faces(budget, batch);
+        else if (swap) binary_faces<true>(budget, batch);
+        else binary_faces<false>(budget, batch);
+        triangles_out_ += batch.triangles.size() - before;
+      } else {
+        if (ascii) ascii_skip(element);
+        else if (swap) binary_skip<true>(element);
+        else binary_skip<false>(element);
+      }
+    }
+    return !batch.vertices.empty() || !batch.triangles.empty();
+  }
+
+ private:
+  const std::string& name() const { return source_.name(); }
+  std::string byte_place(uint64_t offset) const { return "byte " + std::to_string(offset); }
+  std::string line_place() const { return "line " + std::to_string(line_); }
+  std::string place(uint64_t offset) const {
+    return header_.format == MeshFormat::ply_ascii ? line_place() : byte_place(offset);
+  }
+
+  std::string record_name(const PlyElement& element, uint64_t record) const {
+    return element.name + " " + std::to_string(record) + " of " + std::to_string(element.count);
+  }
+
+  [[noreturn]] void truncated(const PlyElement& element, size_t needed) {
+    std::string what = "file ends inside " + record_name(element, done_);
+    if (header_.format != MeshFormat::ply_ascii) {
+      what += " (needed " + std::to_string(needed) + " more bytes, found " +
+              std::to_string(source_.available()) + ")";
+    }
+    throw_bad_input(name(), place(source_.offset()), what);
+  }
+
+  void check_vertex(const Point& p, uint64_t vertex, uint64_t offset) {
+    if (!all_finite(p)) {
+      throw_bad_input(name(), place(offset),
+                      "vertex " + std::to_string(vertex) + " has a non-finite coordinate (" +
+                          std::to_string(p[0]) + ", " + std::to_string(p[1]) + ", " +
+                          std::to_string(p[2]) + ")");
+    }
+  }
+
+  [[noreturn]] void bad_index(uint64_t face, int64_t index, uint64_t offset) {
+    throw_bad_input(name(), place(offset),
+                    "face " + std::to_string(face) + " has vertex index " + std::to_string(index) +
+                        " but the file has " + std::to_string(vertex_count_) + " vertices");
+  }
+
+  void check_polygon_size(uint64_t face, int64_t count, uint64_t offset) {
+    if (count < 3) {
+      throw_bad_input(name(), place(offset),
+                      "face " + std::to_string(face) + " has " + std::to_string(count) +
+                          " vertices (a face needs at least 3)");
+    }
+  }
+
+  // Fan-triangulates polygon_ (already validated) into the batch.
+  void emit_polygon(MeshBatch& batch) {
+    for (size_t i = 1; i + 1 < polygon_.size(); ++i) {
+      batch.triangles.push_back({polygon_[0], polygon_[i], polygon_[i + 1]});
+    }
+  }
+
+  // Length of the binary record at p if all of it is within `available`; otherwise 0
+  // and `needed` is how many bytes are known to be required.
+  template <bool Swap>
+  size_t binary_record_length(const PlyElement& element, const char* p, size_t available,
+                              size_t& needed, size_t* list_offset = nullptr,
+                              size_t list_property = SIZE_MAX) {
+    size_t position = 0;
+    for (size_t i = 0; i < element.properties.size(); ++i) {
+      const PlyProperty& property = element.properties[i];
+      if (!property.is_list) {
+        position += size_of(property.type);
+        continue;
+      }
+      size_t count_size = size_of(property.count_type);
+      if (position + count_size > available) {
+        needed = position + count_size;
+        return 0;
+      }
+      if (i == list_property) *list_offset = position;
+      int64_t count = load_integer<Swap>(property.count_type, p + position);
+      if (count < 0) {
+        throw_bad_input(name(), byte_place(source_.offset() + (p - source_.data())),
+                        element.name + " " + std::to_string(done_) + " has a negative list count " +
+                            std::to_string(count));
+      }
+      position += count_size + static_cast<size_t>(count) * size_of(property.type);
+      if (position > max_record_bytes) {
+        throw_bad_input(name(), byte_place(source_.offset() + (p - source_.data())),
+                        element.name + " " + std::to_string(done_) + " has an implausible list of " +
+                            std::to_string(count) + " items");
+      }
+    }
+    if (position > available) {
+      needed = position;
+      return 0;
+    }
+    return position;
+  }
+
+  template <bool Swap>
+  void binary_skip(const PlyElement& element) {
+    size_t record = element.fixed_record_size();
+    while (done_ < element.count) {
+      if (record > 0 || element.properties.empty()) {
+        if (record == 0) {
+          done_ = element.count;
+          return;
+        }
+        if (!source_.fill(record)) truncated(element, record);
+        uint64_t fit = std::min<uint64_t>(element.count - done_, source_.available() / record);
+        source_.consume(fit * record);
+        done_ += fit;
+        continue;
+      }
+      size_t needed = 0;
+      size_t length = binary_record_length<Swap>(element, source_.data(), source_.available(), needed);
+      if (length == 0) {
+        if (!source_.fill(needed)) truncated(element, needed);
+        continue;
+      }
+      source_.consume(length);
+      ++done_;
+    }
+  }
+
+  template <bool Swap>
+  void binary_vertices(size_t budget, MeshBatch& batch) {
+    const PlyElement& element = header_.elements[header_.vertex_element];
+    size_t record = element.fixed_record_size();
+    size_t offsets[3];
+    PlyType types[3];
+    for (int axis = 0; axis < 3; ++axis) {
+      size_t property = header_.coordinate_property[axis];
+      types[axis] = element.properties[property].type;
+      offsets[axis] = 0;
+      for (size_t i = 0; i < property; ++i) offsets[axis] += size_of(element.properties[i].type);
+    }
+    bool packed_floats = record == 12 && types[0] == PlyType::float32 &&
+                         types[1] == PlyType::float32 && types[2] == PlyType::float32 &&
+                         offsets[0] == 0 && offsets[1] == 4 && offsets[2] == 8;
+    while (done_ < element.count && batch.vertices.size() < budget) {
+      if (record == 0) {
+        // Lists in the vertex element: walk record by record; lists come after
+        // scalars only if the header says so, so offsets are recomputed per record.
+        binary_vertex_with_lists<Swap>(element, batch);
+        continue;
+      }
+      if (!source_.fill(record)) truncated(element, record);
+      size_t fit = std::min<uint64_t>({element.count - done_, source_.available() / record,
+                                       budget - batch.vertices.size()});
+      size_t base = batch.vertices.size();
+      batch.vertices.resize(base + fit);
+      Point* out = batch.vertices.data() + base;
+      const char* p = source_.data();
+      if (packed_floats) {
+        for (size_t i = 0; i < fit; ++i, p += 12) {
+          out[i] = {std::bit_cast<float>(load32<Swap>(p)), std::bit_cast<float>(load32<Swap>(p + 4)),
+                    std::bit_cast<float>(load32<Swap>(p + 8))};
+        }
+      } else {
+        for (size_t i = 0; i < fit; ++i, p += record) {
+          out[i] = {load_real<Swap>(types[0], p + offsets[0]), load_real<Swap>(types[1], p + offsets[1]),
+                    load_real<Swap>(types[2], p + offsets[2])};
+        }
+      }
+      for (size_t i = 0; i < fit; ++i) {
+        if (!all_finite(out[i])) check_vertex(out[i], done_ + i, source_.offset() + i * record);
+      }
+      source_.consume(fit * record);
+      done_ += fit;
+    }
+  }
+
+  template <bool Swap>
+  void binary_vertex_with_lists(const PlyElement& element, MeshBatch& batch) {
+    size_t needed = 0;
+    size_t length = binary_record_length<Swap>(element, source_.data(), source_.available(), needed);
+    if (length == 0) {
+      if (!source_.fill(needed)) truncated(element, needed);
+      return;
+    }
+    const char* p = source_.data();
+    Point point{};
+    size_t position = 0;
+    for (size_t i = 0; i < element.properties.size(); ++i) {
+      const PlyProperty& property = element.properties[i];
+      if (property.is_list) {
+        int64_t count = load_integer<Swap>(property.count_type, p + position);
+        position += size_of(property.count_type) + count * size_of(property.type);
+        continue;
+      }
+      for (int axis = 0; axis < 3; ++axis) {
+        if (header_.coordinate_property[axis] == i) point[axis] = load_real<Swap>(property.type, p + position);
+      }
+      position += size_of(property.type);
+    }
+    check_vertex(point, done_, source_.offset());
+    batch.vertices.push_back(point);
+    source_.consume(length);
+    ++done_;
+  }
+
+  template <bool Swap>
+  void binary_faces(size_t budget, MeshBatch& batch) {
+    const PlyElement& element = header_.elements[*header_.face_element];
+    const PlyProperty& list = element.properties[header_.index_property];
+    const bool only_list = element.properties.size() == 1;
+    const size_t count_size = size_of(list.count_type);
+    const size_t index_size = size_of(list.type);
+    const PlyType count_type = list.count_type;
+    const PlyType index_type = list.type;
+    const bool uchar_int = count_type == PlyType::uint8 &&
+                           (index_type == PlyType::int32 || index_type == PlyType::uint32);
+    batch.triangles.reserve(budget);
+    while (done_ < element.count && batch.vertices.size() + batch.triangles.size() < budget) {
+      const char* p = source_.data();
+      const size_t available = source_.available();
+      size_t used = 0;
+      size_t needed = 0;
+      while (done_ < element.count && batch.vertices.size() + batch.triangles.size() < budget) {
+        const char* record = p + used;
+        const size_t left = available - used;
+        // The common layout: "list uchar int" and triangles only.
+        if (only_list && uchar_int && left >= 13 && static_cast<uint8_t>(*record) == 3) {
+          uint32_t a = load32<Swap>(record + 1), b = load32<Swap>(record + 5), c = load32<Swap>(record + 9);
+          // For signed int, negative values become huge as uint32 and fail this test too.
+          if (a >= vertex_count_ || b >= vertex_count_ || c >= vertex_count_) {
+            uint32_t bad = a >= vertex_count_ ? a : b >= vertex_count_ ? b : c;
+            int64_t shown = index_type == PlyType::int32 ? int64_t{static_cast<int32_t>(bad)} : int64_t{bad};
+            bad_index(done_, shown, source_.offset() + used);
+          }
+          batch.triangles.push_back({a, b, c});
+          used += 13;
+          ++done_;
+          continue;
+        }
+        size_t list_offset = 0;
+        size_t length;
+        if (only_list) {
+          if (left < count_size) {
+            needed = count_size;
+            break;
+          }
+          int64_t count = load_integer<Swap>(count_type, record);
+          check_polygon_size(done_, count, source_.offset() + used);
+          length = count_size + static_cast<size_t>(count) * index_size;
+          if (length > max_record_bytes) {
+            throw_bad_input(name(), byte_place(source_.offset() + used),
+                            "face " + std::to_string(done_) + " has an implausible " +
+                                std::to_string(count) + " vertices");
+          }
+          if (left < length) {
+            needed = length;
+            break;
+          }
+        } else {
+          length = binary_record_length<Swap>(element, record, left, needed, &list_offset,
+                                              header_.index_property);
+          if (length == 0) break;
+        }
+        int64_t count = load_integer<Swap>(count_type, record + list_offset);
+        check_polygon_size(done_, count, source_.offset() + used);
+        const char* indices = record + list_offset + count_size;
+        polygon_.resize(static_cast<size_t>(count));
+        for (int64_t i = 0; i < count; ++i) {
+          int64_t index = load_integer<Swap>(index_type, indices + i * index_size);
+          if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) {
+            bad_index(done_, index, source_.offset() + used);
+          }
+          polygon_[i] = static_cast<uint64_t>(index);
+        }
+        emit_polygon(batch);
+        used += length;
+        ++done_;
+      }
+      source_.consume(used);
+      if (needed > 0 && !source_.fill(needed)) truncated(element, needed);
+    }
+  }
+
+  // ---- ascii ----
+
+  // Next whitespace-separated token; false at end of file. The view is valid until
+  // the next call.
+  bool next_token(std::string_view& token) {
+    for (;;) {
+      if (!source_.fill(1)) return false;
+      const char* p = source_.data();
+      size_t n = source_.available();
+      size_t i = 0;
+      while (i < n && is_space(p[i])) {
+        if (p[i] == '\n') ++line_;
+        ++i;
+      }
+      source_.consume(i);
+      if (i < n) break;
+    }
+    size_t scanned = 0;
+    for (;;) {
+      const char* p = source_.data();
+      size_t n = source_.available();
+      size_t i = scanned;
+      while (i < n && !is_space(p[i])) ++i;
+      if (i == n) {
+        if (n > 4096) throw_bad_input(name(), line_place(), "token is too long");
+        if (source_.fill(n + 1)) {
+          scanned = n;
+          continue;
+        }
+        p = source_.data();
+        i = source_.available();
+      }
+      token = std::string_view(p, i);
+      source_.consume(i);
+      return true;
+    }
+  }
+
+  std::string_view expect_token(const PlyElement& element) {
+    std::string_view token;
+    if (!next_token(token)) truncated(element, 0);
+    return token;
+  }
+
+  int64_t parse_integer(std::string_view token, const char* what) {
+    if (!token.empty() && token[0] == '+') token.remove_prefix(1);
+    int64_t value = 0;
+    auto [end, error] = std::from_chars(token.data(), token.data() + token.size(), value);
+    if (error != std::errc() || end != token.data() + token.size()) {
+      throw_bad_input(name(), line_place(),
+                      std::string(what) + " '" + std::string(token) + "' is not an integer");
+    }
+    return value;
+  }
+
+  double parse_real(std::string_view token, const char* what) {
+    if (!token.empty() && token[0] == '+') token.remove_prefix(1);
+    double value = 0;
+    auto [end, error] = std::from_chars(token.data(), token.data() + token.size(), value);
+    if (error == std::errc::result_out_of_range) return std::numeric_limits<double>::infinity();
+    if (error != std::errc() || end != token.data() + token.size()) {
+      throw_bad_input(name(), line_place(),
+                      std::string(what) + " '" + std::string(token) + "' is not a number");
+    }
+    return value;
+  }
+
+  int64_t ascii_list_count(const PlyElement& element, const PlyProperty& property) {
+    int64_t count = parse_integer(expect_token(element), "list count");
+    if (count < 0 || count > int64_t{1} << 24) {
+      throw_bad_input(name(), line_place(),
+                      element.name + " " + std::to_string(done_) + " has an invalid list count " +
+                          std::to_string(count) + " for '" + property.name + "'");
+    }
+    return count;
+  }
+
+  void ascii_skip_property(const PlyElement& element, const PlyProperty& property) {
+    if (!property.is_list) {
+      expect_token(element);
+      return;
+    }
+    int64_t count = ascii_list_count(element, property);
+    for (int64_t i = 0; i < count; ++i) expect_token(element);
+  }
+
+  void ascii_skip(const PlyElement& element) {
+    for (; done_ < element.count; ++done_) {
+      for (const auto& property : element.properties) ascii_skip_property(element, property);
+    }
+  }
+
+  void ascii_vertices(size_t budget, MeshBatch& batch) {
+    const PlyElement& element = header_.elements[header_.vertex_element];
+    while (done_ < element.count && batch.vertices.size() < budget) {
+      Point point{};
+      for (size_t i = 0; i < element.properties.size(); ++i) {
+        const PlyProperty& property = element.properties[i];
+        int axis = -1;
+        for (int a = 0; a < 3; ++a) {
+          if (header_.coordinate_property[a] == i) axis = a;
+        }
+        if (axis < 0) {
+          ascii_skip_property(element, property);
+          continue;
+        }
+        point[axis] = parse_real(expect_token(element), "coordinate");
+      }
+      check_vertex(point, done_, 0);
+      batch.vertices.push_back(point);
+      ++done_;
+    }
+  }
+
+  void ascii_faces(size_t budget, MeshBatch& batch) {
+    const PlyElement& element = header_.elements[*header_.face_element];
+    while (done_ < element.count && batch.vertices.size() + batch.triangles.size() < budget) {
+      for (size_t i = 0; i < element.properties.size(); ++i) {
+        const PlyProperty& property = element.properties[i];
+        if (i != header_.index_property) {
+          ascii_skip_property(element, property);
+          continue;
+        }
+        int64_t count = ascii_list_count(element, property);
+        check_polygon_size(done_, count, 0);
+        polygon_.resize(static_cast<size_t>(count));
+        for (int64_t k = 0; k < count; ++k) {
+          int64_t index = parse_integer(expect_token(element), "vertex index");
+          if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) bad_index(done_, index, 0);
+          polygon_[k] = static_cast<uint64_t>(index);
+        }
+      }
+      emit_polygon(batch);
+      ++done_;
+    }
+  }
+
+  ByteSource source_;
+  PlyHeader header_;
+  MeshInfo info_;
+  uint64_t vertex_count_ = 0;
+  size_t element_ = 0;     // element being read
+  uint64_t done_ = 0;      // records of it already read
+  uint64_t line_ = 0;      // ascii: current line
+  uint64_t vertices_out_ = 0;
+  uint64_t triangles_out_ = 0;
+  std::vector<uint64_t> polygon_;
+};
+
+}  // namespace
+
+std::unique_ptr<MeshReader> open_ply_reader(const std::filesystem::path& path, bool zstd) {
+  return std::make_unique<PlyReader>(path, zstd);
+}
+
+}  // namespace qemflow::io
