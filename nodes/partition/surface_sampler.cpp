@@ -1,0 +1,221 @@
+#include "nodes/partition/surface_sampler.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "nodes/partition/counter_hash.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::nodes::partition {
+namespace {
+
+constexpr int kExponentBias = 1100;  // frexp exponents of positive finite doubles: -1073..1024
+constexpr int kBinCount = 2200;
+
+Vec3 unit_normal(const std::array<Point, 3>& c) {
+  const Vec3 n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
+  const double length = norm(n);
+  return length > 0 ? scale(n, 1.0 / length) : Vec3{0, 0, 0};
+}
+
+bool dart_order(const SurfaceSampler::Candidate& a, const SurfaceSampler::Candidate& b) {
+  if (a.key != b.key) return a.key < b.key;
+  if (a.face_id != b.face_id) return a.face_id < b.face_id;
+  return a.k < b.k;
+}
+
+Vec3 widen(const std::array<float, 3>& n) { return {n[0], n[1], n[2]}; }
+
+// Random sequential adsorption of the candidates (already in dart order) at `radius`:
+// the indices of the accepted candidates.
+std::vector<uint32_t> throw_darts(const std::vector<SurfaceSampler::Candidate>& darts,
+                                  double radius, const SheetLimits& sheets) {
+  const double inverse_cell = 1.0 / radius;
+  std::unordered_map<Cell, uint32_t, CellHash> head;  // cell -> last accepted (+1)
+  std::vector<uint32_t> accepted;
+  std::vector<uint32_t> next;  // per accepted: previous accepted in its cell (+1)
+  for (size_t processed = 0; processed < darts.size(); ++processed) {
+    const auto& dart = darts[processed];
+    const Vec3 normal = widen(dart.normal);
+    bool conflict = false;
+    for_each_neighbour_cell(cell_of(dart.position, inverse_cell), [&](const Cell& cell) {
+      if (conflict) return;
+      auto found = head.find(cell);
+      if (found == head.end()) return;
+      for (uint32_t link = found->second; link != 0 && !conflict; link = next[link - 1]) {
+        const auto& other = darts[accepted[link - 1]];
+        conflict = approx_geodesic(dart.position, normal, other.position, widen(other.normal),
+                                   sheets) < radius;
+      }
+    });
+    if (conflict) continue;
+    uint32_t& cell_head = head[cell_of(dart.position, inverse_cell)];
+    accepted.push_back(static_cast<uint32_t>(processed));
+    next.push_back(cell_head);
+    cell_head = static_cast<uint32_t>(accepted.size());
+  }
+  return accepted;
+}
+
+}  // namespace
+
+double triangle_area(const std::array<Point, 3>& c) {
+  return 0.5 * norm(cross(sub(c[1], c[0]), sub(c[2], c[0])));
+}
+
+SurfaceAreaSum::SurfaceAreaSum() : bins_(kBinCount, 0) {}
+
+void SurfaceAreaSum::add(double area) {
+  if (!(area > 0) || !std::isfinite(area)) return;
+  int exponent = 0;
+  const double mantissa = std::frexp(area, &exponent);  // area = mantissa · 2^exponent
+  const auto integer_mantissa = static_cast<uint64_t>(std::ldexp(mantissa, 53));
+  bins_[static_cast<size_t>(exponent + kExponentBias)] += integer_mantissa;
+}
+
+void SurfaceAreaSum::add_faces(std::span<const PositionedFace> faces) {
+  for (const auto& face : faces) add(triangle_area(face.corners));
+}
+
+void SurfaceAreaSum::merge(const SurfaceAreaSum& other) {
+  for (size_t i = 0; i < bins_.size(); ++i) bins_[i] += other.bins_[i];
+}
+
+double SurfaceAreaSum::total() const {
+  long double sum = 0;
+  for (size_t i = bins_.size(); i-- > 0;) {
+    if (bins_[i] == 0) continue;
+    const auto high = static_cast<uint64_t>(bins_[i] >> 64);
+    const auto low = static_cast<uint64_t>(bins_[i]);
+    const int exponent = static_cast<int>(i) - kExponentBias - 53;
+    sum += std::ldexp(static_cast<long double>(high), exponent + 64) +
+           std::ldexp(static_cast<long double>(low), exponent);
+  }
+  return static_cast<double>(sum);
+}
+
+double radius_for_sample_count(double area, uint64_t target_count) {
+  if (!(area > 0) || target_count == 0)
+    throw Error(ErrorKind::internal, "radius_for_sample_count: empty surface or zero target");
+  return std::sqrt(0.7 * area / static_cast<double>(target_count));
+}
+
+SurfaceSampler::SurfaceSampler(const SamplerOptions& options)
+    : options_(options), inverse_cell_size_(1.0 / options.radius) {
+  if (!(options.radius > 0) || !std::isfinite(options.radius) || options.candidates_per_cell == 0 ||
+      !(options.candidates_per_area > 0) || options.max_samples == 0)
+    throw Error(ErrorKind::internal, "SurfaceSampler: radius, cap and candidate counts must be > 0");
+}
+
+void SurfaceSampler::offer(const Candidate& candidate) {
+  const uint32_t per_cell = options_.candidates_per_cell;
+  auto [slot, inserted] =
+      cell_slot_.try_emplace(cell_of(candidate.position, inverse_cell_size_),
+                             static_cast<uint32_t>(cell_count_.size()));
+  if (inserted) {
+    cell_count_.push_back(0);
+    candidates_.resize(candidates_.size() + per_cell);
+    free_slots_ += per_cell;
+  }
+  const uint32_t cell = slot->second;
+  Candidate* begin = candidates_.data() + static_cast<size_t>(cell) * per_cell;
+  uint32_t& count = cell_count_[cell];
+  if (count < per_cell) {
+    begin[count++] = candidate;
+    --free_slots_;
+    return;
+  }
+  Candidate* largest = std::max_element(begin, begin + per_cell, dart_order);
+  if (dart_order(candidate, *largest)) *largest = candidate;
+}
+
+void SurfaceSampler::add_faces(std::span<const PositionedFace> faces) {
+  const double per_area =
+      options_.candidates_per_area / (options_.radius * options_.radius);
+  for (const auto& face : faces) {
+    const double area = triangle_area(face.corners);
+    if (!(area > 0) || !std::isfinite(area)) continue;
+    const double expected = area * per_area;
+    const double whole = std::floor(expected);
+    const uint64_t rounding = counter_hash(options_.seed, face.id, UINT64_MAX);
+    const uint64_t count = static_cast<uint64_t>(whole) +
+                           (unit_interval(rounding) < expected - whole ? 1 : 0);
+    const Vec3 n = unit_normal(face.corners);
+    const std::array<float, 3> normal{static_cast<float>(n[0]), static_cast<float>(n[1]),
+                                      static_cast<float>(n[2])};
+    const Vec3 edge1 = sub(face.corners[1], face.corners[0]);
+    const Vec3 edge2 = sub(face.corners[2], face.corners[0]);
+    for (uint64_t k = 0; k < count && k < UINT32_MAX; ++k) {
+      double u = unit_interval(counter_hash(options_.seed, face.id, 3 * k));
+      double v = unit_interval(counter_hash(options_.seed, face.id, 3 * k + 1));
+      if (u + v > 1) {
+        u = 1 - u;
+        v = 1 - v;
+      }
+      Candidate candidate;
+      candidate.key = counter_hash(options_.seed, face.id, 3 * k + 2);
+      candidate.face_id = face.id;
+      candidate.position = add(face.corners[0], add(scale(edge1, u), scale(edge2, v)));
+      candidate.normal = normal;
+      candidate.k = static_cast<uint32_t>(k);
+      offer(candidate);
+    }
+  }
+}
+
+void SurfaceSampler::merge(SurfaceSampler&& other) {
+  const uint32_t per_cell = other.options_.candidates_per_cell;
+  for (size_t cell = 0; cell < other.cell_count_.size(); ++cell)
+    for (uint32_t i = 0; i < other.cell_count_[cell]; ++i) offer(other.candidates_[cell * per_cell + i]);
+  other = SurfaceSampler(other.options_);
+}
+
+SampleSet SurfaceSampler::finish() const {
+  std::vector<Candidate> darts;
+  darts.reserve(kept_candidates());
+  const uint32_t per_cell = options_.candidates_per_cell;
+  for (size_t cell = 0; cell < cell_count_.size(); ++cell)
+    for (uint32_t i = 0; i < cell_count_[cell]; ++i) darts.push_back(candidates_[cell * per_cell + i]);
+  std::sort(darts.begin(), darts.end(), dart_order);
+
+  double radius = options_.radius;
+  std::vector<uint32_t> accepted;
+  for (int attempt = 0;; ++attempt) {
+    accepted = throw_darts(darts, radius, options_.sheets);
+    if (accepted.size() <= options_.max_samples) break;
+    if (attempt == 60) throw Error(ErrorKind::internal, "SurfaceSampler: sample cap unreachable");
+    // The count falls about as 1/r² (a surface's samples cover it with disks).
+    const double growth = std::sqrt(static_cast<double>(accepted.size()) /
+                                    (0.95 * static_cast<double>(options_.max_samples)));
+    radius *= std::max(growth, 1.02);
+  }
+
+  std::vector<uint32_t> order = accepted;
+  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
+    if (darts[a].face_id != darts[b].face_id) return darts[a].face_id < darts[b].face_id;
+    return darts[a].k < darts[b].k;
+  });
+  SampleSet result;
+  result.radius = radius;
+  result.samples.reserve(order.size());
+  for (uint32_t index : order)
+    result.samples.push_back({darts[index].position, widen(darts[index].normal), darts[index].face_id});
+  return result;
+}
+
+SampleSet sample_faces(std::span<const PositionedFace> faces, uint64_t target_count, uint64_t seed,
+                       uint64_t max_samples) {
+  SurfaceAreaSum area;
+  area.add_faces(faces);
+  SamplerOptions options;
+  options.radius = radius_for_sample_count(area.total(), target_count);
+  options.max_samples = max_samples;
+  options.seed = seed;
+  SurfaceSampler sampler(options);
+  sampler.add_faces(faces);
+  return sampler.finish();
+}
+
+}  // namespace qemflow::nodes::partition

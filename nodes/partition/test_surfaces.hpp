@@ -1,0 +1,103 @@
+#pragma once
+// Small analytic closed surfaces for the partition tests and benchmarks, independent
+// of the generator in gen/: a bumpy icosphere, a torus and a flattened (two-sheet)
+// ellipsoid. All outward oriented, built from their parameters alone.
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <map>
+#include <utility>
+#include <vector>
+
+#include "nodes/partition/surface_sampler.hpp"
+
+namespace qemflow::nodes::partition::shapes {
+
+struct Surface {
+  std::vector<Point> vertices;
+  std::vector<Triangle> triangles;
+};
+
+// Icosahedron subdivided `levels` times (20·4^levels faces), projected on the unit
+// sphere, then radius 1 + bump·sin(3x)sin(4y)sin(5z), then scaled per axis.
+inline Surface icosphere(int levels, double bump = 0.0, Point axes = {1, 1, 1}) {
+  const double t = (1.0 + std::sqrt(5.0)) / 2.0;
+  Surface s;
+  s.vertices = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
+                {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+  s.triangles = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+                 {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
+                 {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+  auto unit = [](Point p) {
+    const double l = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+    return Point{p[0] / l, p[1] / l, p[2] / l};
+  };
+  for (auto& v : s.vertices) v = unit(v);
+  for (int level = 0; level < levels; ++level) {
+    std::map<std::pair<uint64_t, uint64_t>, uint64_t> midpoint;
+    auto middle = [&](uint64_t a, uint64_t b) {
+      auto key = std::minmax(a, b);
+      auto [it, inserted] = midpoint.try_emplace({key.first, key.second}, s.vertices.size());
+      if (inserted) {
+        const Point& p = s.vertices[a];
+        const Point& q = s.vertices[b];
+        s.vertices.push_back(unit({p[0] + q[0], p[1] + q[1], p[2] + q[2]}));
+      }
+      return it->second;
+    };
+    std::vector<Triangle> finer;
+    finer.reserve(s.triangles.size() * 4);
+    for (const auto& f : s.triangles) {
+      const uint64_t ab = middle(f[0], f[1]), bc = middle(f[1], f[2]), ca = middle(f[2], f[0]);
+      finer.push_back({f[0], ab, ca});
+      finer.push_back({f[1], bc, ab});
+      finer.push_back({f[2], ca, bc});
+      finer.push_back({ab, bc, ca});
+    }
+    s.triangles = std::move(finer);
+  }
+  for (auto& v : s.vertices) {
+    const double r = 1.0 + bump * std::sin(3 * v[0]) * std::sin(4 * v[1]) * std::sin(5 * v[2]);
+    v = {v[0] * r * axes[0], v[1] * r * axes[1], v[2] * r * axes[2]};
+  }
+  return s;
+}
+
+// Torus around the z axis: `around` × `across` quads, two triangles each.
+inline Surface torus(uint64_t around, uint64_t across, double major = 1.0, double minor = 0.35) {
+  constexpr double two_pi = 6.283185307179586;
+  Surface s;
+  for (uint64_t i = 0; i < around; ++i)
+    for (uint64_t j = 0; j < across; ++j) {
+      const double u = two_pi * static_cast<double>(i) / static_cast<double>(around);
+      const double v = two_pi * static_cast<double>(j) / static_cast<double>(across);
+      const double ring = major + minor * std::cos(v);
+      s.vertices.push_back({ring * std::cos(u), ring * std::sin(u), minor * std::sin(v)});
+    }
+  auto id = [&](uint64_t i, uint64_t j) { return (i % around) * across + (j % across); };
+  for (uint64_t i = 0; i < around; ++i)
+    for (uint64_t j = 0; j < across; ++j) {
+      s.triangles.push_back({id(i, j), id(i + 1, j), id(i + 1, j + 1)});
+      s.triangles.push_back({id(i, j), id(i + 1, j + 1), id(i, j + 1)});
+    }
+  return s;
+}
+
+// Appends `other` moved by `offset` (two disjoint pieces in one mesh).
+inline void append(Surface& s, const Surface& other, Point offset) {
+  const uint64_t base = s.vertices.size();
+  for (const auto& v : other.vertices) s.vertices.push_back({v[0] + offset[0], v[1] + offset[1], v[2] + offset[2]});
+  for (const auto& f : other.triangles) s.triangles.push_back({f[0] + base, f[1] + base, f[2] + base});
+}
+
+// Faces with positions, face id = index.
+inline std::vector<PositionedFace> positioned_faces(const Surface& s) {
+  std::vector<PositionedFace> faces(s.triangles.size());
+  for (size_t f = 0; f < faces.size(); ++f) {
+    faces[f].id = f;
+    for (int c = 0; c < 3; ++c) faces[f].corners[c] = s.vertices[s.triangles[f][c]];
+  }
+  return faces;
+}
+
+}  // namespace qemflow::nodes::partition::shapes
