@@ -1,0 +1,67 @@
+#include "nodes/decimate/cut.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace qemflow::nodes {
+
+RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_faces,
+                     double round_fraction) {
+  RoundPlan plan;
+  if (faces <= target_faces || total.candidate_faces == 0) return plan;
+  const uint64_t needed = faces - target_faces;
+  const uint64_t budget =
+      std::max<uint64_t>(1, static_cast<uint64_t>(std::floor(round_fraction * double(faces))));
+  // Largest bin whose cumulative count stays within the budget (at least the first
+  // non-empty bin, so every round makes progress).
+  uint64_t cumulative = 0;
+  size_t chosen = kCostBins;
+  for (size_t bin = 0; bin < kCostBins; ++bin) {
+    const uint64_t n = total.faces_per_bin[bin];
+    if (n == 0) continue;
+    if (chosen != kCostBins && cumulative + n > budget) break;
+    cumulative += n;
+    chosen = bin;
+  }
+  if (cumulative >= needed) {
+    plan.kind = RoundPlan::Kind::exact_cut;
+    plan.needed = needed;
+    return plan;
+  }
+  plan.kind = RoundPlan::Kind::bin_cut;
+  plan.cut.key = {cost_bin_upper(chosen), std::numeric_limits<uint64_t>::max(),
+                  std::numeric_limits<uint64_t>::max()};
+  return plan;
+}
+
+std::optional<RoundCut> exact_cut(std::span<const std::span<const Candidate>> lists,
+                                  uint64_t needed) {
+  std::vector<size_t> at(lists.size(), 0);
+  uint64_t removed = 0;
+  std::optional<RoundCut> cut;
+  for (;;) {
+    size_t best = lists.size();
+    for (size_t i = 0; i < lists.size(); ++i)
+      if (at[i] < lists[i].size() &&
+          (best == lists.size() || lists[i][at[i]].key < lists[best][at[best]].key))
+        best = i;
+    if (best == lists.size()) break;
+    const Candidate& c = lists[best][at[best]];
+    if (removed + c.faces_removed > needed) break;
+    removed += c.faces_removed;
+    cut = RoundCut{c.key, false};
+    ++at[best];
+    if (removed == needed) break;
+  }
+  if (cut) return cut;
+  // Nothing fits as a prefix (one face left, the cheapest candidate removes two):
+  // take the cheapest candidate that removes exactly one face, if any.
+  std::optional<RoundCut> single;
+  for (const auto& list : lists)
+    for (const auto& c : list)
+      if (c.faces_removed == 1 && (!single || c.key < single->key)) single = RoundCut{c.key, true};
+  return single;
+}
+
+}  // namespace qemflow::nodes

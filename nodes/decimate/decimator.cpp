@@ -1,0 +1,561 @@
+#include "nodes/decimate/decimator.hpp"
+
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <stdexcept>
+
+namespace qemflow::nodes {
+namespace {
+
+constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+
+Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+Vec3 cross(const Vec3& a, const Vec3& b) {
+  return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+}
+double dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+Vec3 triangle_normal(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
+  return cross(sub(p1, p0), sub(p2, p0));
+}
+// |cross| / (longest edge)^2: about the sine of the smallest angle; 0 when degenerate.
+double triangle_quality(const Vec3& p0, const Vec3& p1, const Vec3& p2, const Vec3& n) {
+  const Vec3 e0 = sub(p1, p0), e1 = sub(p2, p1), e2 = sub(p0, p2);
+  const double longest = std::max({dot(e0, e0), dot(e1, e1), dot(e2, e2)});
+  if (!(longest > 0.0)) return 0.0;
+  return std::sqrt(dot(n, n)) / longest;
+}
+bool contains(const std::array<uint32_t, 3>& f, uint32_t v) {
+  return f[0] == v || f[1] == v || f[2] == v;
+}
+
+template <class F>
+void parallel_over(size_t n, F&& body, size_t grain = 1024) {
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, grain),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t i = r.begin(); i != r.end(); ++i) body(i);
+                    });
+}
+
+// Sorted (neighbor, number of faces shared with v) of a vertex, from its faces.
+void neighbor_counts(uint32_t v, const std::vector<uint32_t>& faces,
+                     const std::vector<std::array<uint32_t, 3>>& fv,
+                     std::vector<uint32_t>& others,
+                     std::vector<std::pair<uint32_t, uint32_t>>& out) {
+  others.clear();
+  for (uint32_t f : faces)
+    for (uint32_t u : fv[f])
+      if (u != v) others.push_back(u);
+  std::sort(others.begin(), others.end());
+  out.clear();
+  for (uint32_t u : others) {
+    if (!out.empty() && out.back().first == u)
+      ++out.back().second;
+    else
+      out.push_back({u, 1});
+  }
+}
+
+}  // namespace
+
+size_t cost_bin(double cost) {
+  return static_cast<size_t>(std::bit_cast<uint64_t>(cost > 0.0 ? cost : 0.0) >> 50);
+}
+double cost_bin_upper(size_t bin) {
+  return std::bit_cast<double>((static_cast<uint64_t>(bin + 1) << 50) - 1);
+}
+
+void RoundSummary::add(const RoundSummary& other) {
+  for (size_t i = 0; i < kCostBins; ++i) faces_per_bin[i] += other.faces_per_bin[i];
+  candidate_faces += other.candidate_faces;
+  candidates += other.candidates;
+}
+
+struct PatchDecimator::Scratch {
+  std::vector<uint32_t> fa, fb, faces, others;
+  std::vector<std::pair<uint32_t, uint32_t>> na, nb;
+  struct Option {
+    EdgeKey key;
+    uint32_t other;
+    Vec3 position;
+  };
+  std::vector<Option> options;
+};
+
+PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : params_(params) {
+  const size_t nv = in.positions.size();
+  if (in.vertex_gids.size() != nv || in.face_gids.size() != in.faces.size())
+    throw std::invalid_argument("PatchDecimator: array sizes disagree");
+  if (nv >= kNone || in.faces.size() >= kNone / 3)
+    throw std::invalid_argument("PatchDecimator: patch too large for 32-bit local ids");
+  pos_ = std::move(in.positions);
+  vgid_ = std::move(in.vertex_gids);
+  vflag_.assign(nv, 0);
+  if (!in.frozen.empty())
+    for (size_t v = 0; v < nv; ++v)
+      if (in.frozen[v]) vflag_[v] |= kFrozen;
+  in.frozen = {};
+
+  // Faces in ascending global id: the canonical order of every per-vertex sum.
+  if (!std::is_sorted(in.face_gids.begin(), in.face_gids.end())) {
+    std::vector<uint32_t> order(in.faces.size());
+    std::iota(order.begin(), order.end(), 0u);
+    std::sort(order.begin(), order.end(),
+              [&](uint32_t a, uint32_t b) { return in.face_gids[a] < in.face_gids[b]; });
+    std::vector<std::array<uint32_t, 3>> faces(order.size());
+    std::vector<uint64_t> gids(order.size());
+    for (size_t i = 0; i < order.size(); ++i) {
+      faces[i] = in.faces[order[i]];
+      gids[i] = in.face_gids[order[i]];
+    }
+    in.faces = std::move(faces);
+    in.face_gids = std::move(gids);
+  }
+  // Faces with a repeated vertex have no normal or manifold structure: pass them
+  // through and lock their vertices.
+  size_t kept = 0;
+  for (size_t f = 0; f < in.faces.size(); ++f) {
+    const auto& t = in.faces[f];
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
+      passthrough_.push_back(t);
+      passthrough_gids_.push_back(in.face_gids[f]);
+      for (uint32_t v : t) vflag_[v] |= kLocked;
+    } else {
+      in.faces[kept] = t;
+      in.face_gids[kept] = in.face_gids[f];
+      ++kept;
+    }
+  }
+  in.faces.resize(kept);
+  in.face_gids.resize(kept);
+  fv_ = std::move(in.faces);
+  fgid_ = std::move(in.face_gids);
+  falive_.assign(fv_.size(), 1);
+  faces_alive_ = fv_.size();
+
+  build_corner_chains();
+  lock_nonmanifold_vertices();
+  if (in.quadrics.size() == nv) {
+    quadric_ = std::move(in.quadrics);
+  } else {
+    compute_quadrics();
+  }
+  best_.assign(nv, kNone);
+  best_cost_.assign(nv, 0.0);
+  partner_.assign(nv, kNone);
+  dirty_.assign(nv, 1);
+  locked_count_ = 0;
+  for (uint8_t f : vflag_) locked_count_ += (f & kLocked) ? 1 : 0;
+}
+
+void PatchDecimator::build_corner_chains() {
+  head_.assign(pos_.size(), kNone);
+  next_.assign(fv_.size() * 3, kNone);
+  // Built backwards so each chain lists a vertex's faces in ascending face order.
+  for (size_t f = fv_.size(); f-- > 0;) {
+    if (!falive_[f]) continue;
+    for (uint32_t k = 0; k < 3; ++k) {
+      const uint32_t c = static_cast<uint32_t>(3 * f + k);
+      const uint32_t v = fv_[f][k];
+      next_[c] = head_[v];
+      head_[v] = c;
+    }
+  }
+}
+
+void PatchDecimator::gather_faces(uint32_t v, std::vector<uint32_t>& out) const {
+  out.clear();
+  for (uint32_t c = head_[v]; c != kNone; c = next_[c])
+    if (falive_[c / 3]) out.push_back(c / 3);
+}
+
+void PatchDecimator::lock_nonmanifold_vertices() {
+  tbb::enumerable_thread_specific<Scratch> scratch;
+  parallel_over(pos_.size(), [&](size_t vi) {
+    const uint32_t v = static_cast<uint32_t>(vi);
+    if (vflag_[v] & kLocked) return;
+    Scratch& s = scratch.local();
+    gather_faces(v, s.faces);
+    if (s.faces.empty()) return;
+    neighbor_counts(v, s.faces, fv_, s.others, s.na);
+    bool bad = false;
+    // Union-find over the faces around v, joined across manifold edges: more than one
+    // fan means a non-manifold vertex.
+    const size_t m = s.faces.size();
+    s.fb.resize(m);
+    std::iota(s.fb.begin(), s.fb.end(), 0u);
+    auto find = [&](uint32_t x) {
+      while (s.fb[x] != x) x = s.fb[x] = s.fb[s.fb[x]];
+      return x;
+    };
+    size_t components = m;
+    for (const auto& [w, count] : s.na) {
+      if (count > 2) { bad = true; break; }
+      if (count != 2) continue;
+      uint32_t idx[2], n = 0;
+      int direction[2];
+      for (uint32_t i = 0; i < m && n < 2; ++i) {
+        const auto& t = fv_[s.faces[i]];
+        for (int k = 0; k < 3; ++k) {
+          if (t[k] == v && t[(k + 1) % 3] == w) { idx[n] = i; direction[n++] = 1; break; }
+          if (t[k] == w && t[(k + 1) % 3] == v) { idx[n] = i; direction[n++] = -1; break; }
+        }
+      }
+      if (n != 2 || direction[0] == direction[1]) { bad = true; break; }
+      const uint32_t ra = find(idx[0]), rb = find(idx[1]);
+      if (ra != rb) { s.fb[ra] = rb; --components; }
+    }
+    if (bad || components > 1) vflag_[v] |= kLocked;
+  });
+}
+
+void PatchDecimator::compute_quadrics() {
+  quadric_.assign(pos_.size(), Quadric{});
+  tbb::enumerable_thread_specific<Scratch> scratch;
+  parallel_over(pos_.size(), [&](size_t vi) {
+    const uint32_t v = static_cast<uint32_t>(vi);
+    Scratch& s = scratch.local();
+    gather_faces(v, s.faces);  // ascending face order == ascending global face id
+    Quadric q;
+    for (uint32_t f : s.faces) {
+      const auto& t = fv_[f];
+      q += face_quadric(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
+    }
+    neighbor_counts(v, s.faces, fv_, s.others, s.na);
+    auto count_of = [&](uint32_t w) {
+      auto it = std::lower_bound(s.na.begin(), s.na.end(), std::pair<uint32_t, uint32_t>{w, 0});
+      return (it != s.na.end() && it->first == w) ? it->second : 0u;
+    };
+    for (uint32_t f : s.faces) {
+      const auto& t = fv_[f];
+      const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
+      for (int k = 0; k < 3; ++k) {
+        const uint32_t p = t[k], r = t[(k + 1) % 3];
+        if (p != v && r != v) continue;
+        if (count_of(p == v ? r : p) != 1) continue;
+        q += boundary_quadric(pos_[p], pos_[r], n, params_.boundary_weight);
+      }
+    }
+    quadric_[v] = q;
+  });
+}
+
+Vec3 PatchDecimator::edge_position(uint32_t a, uint32_t b) const {
+  const bool a_lo = vgid_[a] < vgid_[b];
+  return collapse_position(quadric_[a] + quadric_[b], pos_[a_lo ? a : b], pos_[a_lo ? b : a]);
+}
+
+EdgeKey PatchDecimator::lme_key(uint32_t v) const {
+  const uint32_t w = partner_[v];
+  return {best_cost_[v], std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
+}
+
+bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const {
+  gather_faces(a, s.fa);
+  gather_faces(b, s.fb);
+  uint32_t opposite[2];
+  int shared = 0;
+  for (uint32_t f : s.fa) {
+    const auto& t = fv_[f];
+    if (!contains(t, b)) continue;
+    if (shared == 2) return false;  // non-manifold edge
+    opposite[shared++] = t[0] != a && t[0] != b ? t[0] : (t[1] != a && t[1] != b ? t[1] : t[2]);
+  }
+  if (shared == 0) return false;
+  if (shared == 2 && opposite[0] == opposite[1]) return false;
+  if (s.fa.size() + s.fb.size() == 2u * shared) return false;  // would erase a component
+
+  neighbor_counts(a, s.fa, fv_, s.others, s.na);
+  neighbor_counts(b, s.fb, fv_, s.others, s.nb);
+  bool a_border = false, b_border = false;
+  for (const auto& [w, c] : s.na) {
+    if (c > 2) return false;
+    a_border |= c == 1;
+  }
+  for (const auto& [w, c] : s.nb) {
+    if (c > 2) return false;
+    b_border |= c == 1;
+  }
+  // An interior edge joining two border vertices would pinch the surface.
+  if (shared == 2 && a_border && b_border) return false;
+  // Link condition: the common neighbours are exactly the opposite vertices...
+  size_t common = 0;
+  for (auto i = s.na.begin(), j = s.nb.begin(); i != s.na.end() && j != s.nb.end();) {
+    if (i->first < j->first) {
+      ++i;
+    } else if (j->first < i->first) {
+      ++j;
+    } else {
+      if (i->first != a && i->first != b) ++common;
+      ++i, ++j;
+    }
+  }
+  if (common != static_cast<size_t>(shared)) return false;
+  // ...and the links of a and b share no edge (a tetrahedron-like pocket).
+  if (shared == 2) {
+    const uint32_t c = opposite[0], d = opposite[1];
+    bool in_a = false, in_b = false;
+    for (uint32_t f : s.fa) in_a |= contains(fv_[f], c) && contains(fv_[f], d);
+    for (uint32_t f : s.fb) in_b |= contains(fv_[f], c) && contains(fv_[f], d);
+    if (in_a && in_b) return false;
+  }
+  // Geometry: no face may flip or become (more) degenerate.
+  auto face_ok = [&](uint32_t f, uint32_t moved) {
+    const auto& t = fv_[f];
+    const Vec3 &p0 = pos_[t[0]], &p1 = pos_[t[1]], &p2 = pos_[t[2]];
+    const Vec3 q0 = t[0] == moved ? p : p0, q1 = t[1] == moved ? p : p1,
+               q2 = t[2] == moved ? p : p2;
+    const Vec3 n_old = triangle_normal(p0, p1, p2);
+    const Vec3 n_new = triangle_normal(q0, q1, q2);
+    const double quality_new = triangle_quality(q0, q1, q2, n_new);
+    if (quality_new < params_.min_face_quality &&
+        quality_new < triangle_quality(p0, p1, p2, n_old))
+      return false;
+    const double old_len2 = dot(n_old, n_old);
+    if (old_len2 > 0.0) {
+      const double d = dot(n_old, n_new);
+      if (d <= 0.0) return false;
+      if (d * d < params_.min_normal_cos * params_.min_normal_cos * old_len2 * dot(n_new, n_new))
+        return false;
+    }
+    return true;
+  };
+  for (uint32_t f : s.fa)
+    if (!contains(fv_[f], b) && !face_ok(f, a)) return false;
+  for (uint32_t f : s.fb)
+    if (!contains(fv_[f], a) && !face_ok(f, b)) return false;
+  return true;
+}
+
+void PatchDecimator::refresh_best(uint32_t v, Scratch& s) {
+  best_[v] = kNone;
+  best_cost_[v] = 0.0;
+  if (vflag_[v] & (kDead | kLocked)) return;
+  gather_faces(v, s.faces);
+  s.others.clear();
+  for (uint32_t f : s.faces)
+    for (uint32_t u : fv_[f])
+      if (u != v) s.others.push_back(u);
+  std::sort(s.others.begin(), s.others.end());
+  s.others.erase(std::unique(s.others.begin(), s.others.end()), s.others.end());
+  s.options.clear();
+  for (uint32_t w : s.others) {
+    if (vflag_[w] & kLocked) continue;
+    const Quadric q = quadric_[v] + quadric_[w];
+    const Vec3 p = edge_position(v, w);
+    const double cost = quadric_error(q, p);
+    if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) continue;
+    s.options.push_back({{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])}, w, p});
+  }
+  std::sort(s.options.begin(), s.options.end(),
+            [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
+  for (const auto& o : s.options) {
+    if (collapse_valid(v, o.other, o.position, s)) {
+      best_[v] = o.other;
+      best_cost_[v] = o.key.cost;
+      return;
+    }
+  }
+}
+
+void PatchDecimator::compact_chain(uint32_t v) {
+  uint32_t* link = &head_[v];
+  for (uint32_t c = head_[v]; c != kNone; c = next_[c]) {
+    if (!falive_[c / 3]) continue;
+    *link = c;
+    link = &next_[c];
+  }
+  *link = kNone;
+}
+
+void PatchDecimator::compact_storage() {
+  // Move live vertices and faces to the front, keeping their relative order (faces
+  // stay in ascending global id), then rebuild the corner chains.
+  std::vector<uint32_t> remap(pos_.size(), kNone);
+  uint32_t nv = 0;
+  for (uint32_t v = 0; v < pos_.size(); ++v) {
+    if (vflag_[v] & kDead) continue;
+    remap[v] = nv;
+    pos_[nv] = pos_[v];
+    vgid_[nv] = vgid_[v];
+    quadric_[nv] = quadric_[v];
+    vflag_[nv] = vflag_[v];
+    dirty_[nv] = dirty_[v];
+    best_[nv] = best_[v];
+    best_cost_[nv] = best_cost_[v];
+    ++nv;
+  }
+  pos_.resize(nv);
+  vgid_.resize(nv);
+  quadric_.resize(nv);
+  vflag_.resize(nv);
+  dirty_.resize(nv);
+  best_.resize(nv);
+  best_cost_.resize(nv);
+  partner_.assign(nv, kNone);
+  for (auto& b : best_) b = b == kNone ? kNone : remap[b];
+  size_t nf = 0;
+  for (size_t f = 0; f < fv_.size(); ++f) {
+    if (!falive_[f]) continue;
+    for (int k = 0; k < 3; ++k) fv_[nf][k] = remap[fv_[f][k]];
+    fgid_[nf] = fgid_[f];
+    ++nf;
+  }
+  fv_.resize(nf);
+  fgid_.resize(nf);
+  falive_.assign(nf, 1);
+  for (auto& t : passthrough_)
+    for (auto& v : t) v = remap[v];
+  build_corner_chains();
+}
+
+void PatchDecimator::prepare_round() {
+  if (fv_.size() > 4096 && faces_alive_ * 2 < fv_.size()) compact_storage();
+  const size_t nv = pos_.size();
+  std::vector<uint32_t> dirty_list;
+  for (uint32_t v = 0; v < nv; ++v)
+    if (dirty_[v]) dirty_list.push_back(v);
+  parallel_over(dirty_list.size(), [&](size_t i) { compact_chain(dirty_list[i]); });
+  tbb::enumerable_thread_specific<Scratch> scratch;
+  parallel_over(dirty_list.size(), [&](size_t i) {
+    refresh_best(dirty_list[i], scratch.local());
+    dirty_[dirty_list[i]] = 0;
+  }, 64);
+  parallel_over(nv, [&](size_t v) {
+    const uint32_t w = best_[v];
+    partner_[v] = (w != kNone && best_[w] == v) ? w : kNone;
+  });
+
+  tbb::enumerable_thread_specific<std::vector<Candidate>> found;
+  parallel_over(nv, [&](size_t vi) {
+    const uint32_t v = static_cast<uint32_t>(vi);
+    const uint32_t w = partner_[v];
+    if (w == kNone || vgid_[v] > vgid_[w] || (vflag_[v] & kFrozen)) return;
+    const EdgeKey key = lme_key(v);
+    Scratch& s = scratch.local();
+    uint32_t shared = 0;
+    for (uint32_t end : {v, w}) {
+      gather_faces(end, s.faces);
+      for (uint32_t f : s.faces) {
+        if (end == v && contains(fv_[f], w)) ++shared;
+        for (uint32_t u : fv_[f]) {
+          if (u == v || u == w || partner_[u] == kNone) continue;
+          if (lme_key(u) < key) return;  // a smaller LME within one ring
+        }
+      }
+    }
+    found.local().push_back({key, v, w, shared});
+  }, 256);
+  candidates_.clear();
+  for (auto& list : found) candidates_.insert(candidates_.end(), list.begin(), list.end());
+  tbb::parallel_sort(candidates_.begin(), candidates_.end(),
+                     [](const Candidate& x, const Candidate& y) { return x.key < y.key; });
+}
+
+RoundSummary PatchDecimator::summarize() const {
+  RoundSummary s;
+  for (const auto& c : candidates_) {
+    s.faces_per_bin[cost_bin(c.key.cost)] += c.faces_removed;
+    s.candidate_faces += c.faces_removed;
+    ++s.candidates;
+  }
+  return s;
+}
+
+void PatchDecimator::collapse(const Candidate& c) {
+  const uint32_t k = c.keep, r = c.remove;
+  const Vec3 p = edge_position(k, r);
+  for (uint32_t corner = head_[r]; corner != kNone; corner = next_[corner]) {
+    const uint32_t f = corner / 3;
+    if (!falive_[f]) continue;
+    if (contains(fv_[f], k))
+      falive_[f] = 0;
+    else
+      fv_[f][corner % 3] = k;
+  }
+  uint32_t* link = &head_[k];
+  while (*link != kNone) link = &next_[*link];
+  *link = head_[r];
+  head_[r] = kNone;
+  pos_[k] = p;
+  quadric_[k] += quadric_[r];
+  vflag_[r] |= kDead;
+  best_[r] = kNone;
+}
+
+uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
+  std::vector<Candidate> chosen;
+  for (const auto& c : candidates_) {
+    if (cut.key < c.key) break;
+    if (cut.single_face_only && c.faces_removed != 1) continue;
+    chosen.push_back(c);
+  }
+  candidates_.clear();
+  // Candidates are >= 2 rings apart: their collapses touch disjoint faces and chains.
+  parallel_over(chosen.size(), [&](size_t i) { collapse(chosen[i]); }, 64);
+  uint64_t removed = 0;
+  for (const auto& c : chosen) removed += c.faces_removed;
+  faces_alive_ -= removed;
+  // Everything whose best edge may have changed lies within 2 rings of a kept vertex.
+  parallel_over(chosen.size(), [&](size_t i) {
+    const uint32_t k = chosen[i].keep;
+    auto mark = [&](uint32_t u) { std::atomic_ref<uint8_t>(dirty_[u]).store(1, std::memory_order_relaxed); };
+    mark(k);
+    // First ring: include the faces this collapse removed, so their opposite
+    // vertices are refreshed even when no live face joins them to k any more.
+    for (uint32_t c1 = head_[k]; c1 != kNone; c1 = next_[c1]) {
+      for (uint32_t u : fv_[c1 / 3]) {
+        if (u == k) continue;
+        mark(u);
+        for (uint32_t c2 = head_[u]; c2 != kNone; c2 = next_[c2]) {
+          if (!falive_[c2 / 3]) continue;
+          for (uint32_t x : fv_[c2 / 3]) mark(x);
+        }
+      }
+    }
+  }, 64);
+  return removed;
+}
+
+PatchOutput PatchDecimator::extract() const {
+  PatchOutput out;
+  std::vector<std::pair<uint64_t, std::array<uint32_t, 3>>> faces;
+  faces.reserve(faces_alive_ + passthrough_.size());
+  for (size_t f = 0; f < fv_.size(); ++f)
+    if (falive_[f]) faces.push_back({fgid_[f], fv_[f]});
+  for (size_t i = 0; i < passthrough_.size(); ++i)
+    faces.push_back({passthrough_gids_[i], passthrough_[i]});
+  tbb::parallel_sort(faces.begin(), faces.end(),
+                     [](const auto& x, const auto& y) { return x.first < y.first; });
+  std::vector<uint8_t> used(pos_.size(), 0);
+  for (const auto& f : faces)
+    for (uint32_t v : f.second) used[v] = 1;
+  std::vector<uint32_t> verts;
+  for (uint32_t v = 0; v < pos_.size(); ++v)
+    if (used[v]) verts.push_back(v);
+  std::sort(verts.begin(), verts.end(), [&](uint32_t a, uint32_t b) { return vgid_[a] < vgid_[b]; });
+  std::vector<uint32_t> remap(pos_.size(), kNone);
+  out.positions.reserve(verts.size());
+  out.vertex_gids.reserve(verts.size());
+  for (uint32_t i = 0; i < verts.size(); ++i) {
+    remap[verts[i]] = i;
+    out.positions.push_back(pos_[verts[i]]);
+    out.vertex_gids.push_back(vgid_[verts[i]]);
+  }
+  out.faces.reserve(faces.size());
+  out.face_gids.reserve(faces.size());
+  for (const auto& [gid, t] : faces) {
+    out.faces.push_back({remap[t[0]], remap[t[1]], remap[t[2]]});
+    out.face_gids.push_back(gid);
+  }
+  return out;
+}
+
+}  // namespace qemflow::nodes

@@ -1,0 +1,169 @@
+#pragma once
+// PatchDecimator: the local-minimal-edge (LME) round machinery of DESIGN.md §3, run on
+// one patch (in core: one patch holding the whole mesh, nothing frozen).
+//
+// Contract
+// - Input: vertices (position, global id, optional frozen flag, optional initial
+//   quadric) and triangles (local vertex refs, global face id). Faces are processed in
+//   ascending global face id; vertex quadrics, when not given, are summed in that order
+//   (area-weighted face planes first, then boundary-edge planes in face order and
+//   corner order), so any patch holding a vertex's whole 1-ring computes the same bits.
+// - A round has three steps, each deterministic and independent of thread count:
+//     prepare_round()  refresh every vertex's best (cheapest valid) edge where the mesh
+//                      changed, find the LMEs and the independent set (candidates);
+//     summarize()      a small summary (integer histogram of candidate costs, weighted
+//                      by faces each would remove) that sums exactly across patches;
+//     apply_cut(cut)   collapse every owned candidate whose key <= cut.
+//   The cut comes from plan_round()/exact_cut() in cut.hpp, from summed summaries.
+// - Total order of edges: key = (cost, smaller global id, larger global id).
+// - best(v): the smallest-key valid edge at v. LME: an edge that is best at both ends.
+//   Candidate: an LME smaller than every other LME with an endpoint within one ring
+//   of its endpoints. Candidates are then >= 2 rings apart, so their collapses touch
+//   disjoint face sets and the round's result does not depend on collapse order.
+// - Decision radius (rings around an edge's endpoints; out-of-core halos are sized
+//   from it): validity of (a,b) reads the faces of a and b (1 ring); best(v) reads the
+//   validity of all edges at v (2 rings); LME status of (a,b) reads best(a), best(b)
+//   (2 rings); candidate status reads LME status of edges with an endpoint within one
+//   ring (1 + 1 + 2 = 4 rings). kDecisionRadius = 4. Quadrics are per-vertex state
+//   carried with the vertex (initially they read the 1-ring faces and boundary edges).
+// - A collapse keeps the vertex with the smaller global id at the collapse position,
+//   with quadric Q_keep + Q_remove. Surviving faces keep their global ids.
+// - Frozen vertices (halo of an out-of-core patch; none in core) take part in every
+//   decision like any vertex, but a candidate is collapsed (and counted in summaries)
+//   only by the patch where its kept vertex is not frozen.
+// - Locked vertices never move: those on non-manifold edges, non-manifold (multi-fan)
+//   vertices, endpoints of inconsistently oriented edges, and vertices of faces with a
+//   repeated vertex (such faces are passed through unchanged). No input face is dropped.
+// - Thread safety: a PatchDecimator is used by one caller at a time; its methods run
+//   oneTBB parallel loops internally.
+#include <array>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "nodes/decimate/quadric.hpp"
+
+namespace qemflow::nodes {
+
+inline constexpr int kDecisionRadius = 4;
+
+struct DecimateParams {
+  // A collapse is invalid when a face normal turns so that cos(angle) < this.
+  double min_normal_cos = 0.2;
+  // A face is degenerate when |cross| / (longest edge)^2 (about the sine of its
+  // smallest angle) is below this; collapses may not create one (nor make one worse).
+  double min_face_quality = 1e-3;
+  // Weight of boundary-preserving quadrics (times squared edge length).
+  double boundary_weight = 1.0;
+};
+
+struct PatchInput {
+  std::vector<Vec3> positions;
+  std::vector<uint64_t> vertex_gids;
+  std::vector<uint8_t> frozen;      // empty: none frozen
+  std::vector<Quadric> quadrics;    // empty: computed from this patch's faces
+  std::vector<std::array<uint32_t, 3>> faces;  // local vertex refs
+  std::vector<uint64_t> face_gids;
+};
+
+struct EdgeKey {
+  double cost = 0.0;
+  uint64_t gid_lo = 0, gid_hi = 0;
+  friend bool operator<(const EdgeKey& a, const EdgeKey& b) {
+    if (a.cost != b.cost) return a.cost < b.cost;
+    if (a.gid_lo != b.gid_lo) return a.gid_lo < b.gid_lo;
+    return a.gid_hi < b.gid_hi;
+  }
+  friend bool operator<=(const EdgeKey& a, const EdgeKey& b) { return !(b < a); }
+};
+
+struct Candidate {
+  EdgeKey key;
+  uint32_t keep = 0, remove = 0;  // local vertex ids
+  uint32_t faces_removed = 0;     // 1 (border edge) or 2
+};
+
+// Fixed log-scale bins of cost: the top 13 bits of the IEEE double (exponent and two
+// mantissa bits), so bins are exact, scale-free and the same in every patch.
+inline constexpr size_t kCostBins = 1u << 13;
+size_t cost_bin(double cost);
+double cost_bin_upper(size_t bin);  // largest double in the bin
+
+struct RoundSummary {
+  std::vector<uint64_t> faces_per_bin = std::vector<uint64_t>(kCostBins, 0);
+  uint64_t candidate_faces = 0;  // sum over owned candidates of faces they remove
+  uint64_t candidates = 0;
+  void add(const RoundSummary& other);
+};
+
+// Collapse owned candidates with key <= `key`; when `single_face_only`, only those
+// removing exactly one face (used to hit an odd remaining count exactly).
+struct RoundCut {
+  EdgeKey key;
+  bool single_face_only = false;
+};
+
+struct PatchOutput {
+  std::vector<Vec3> positions;           // sorted by global id
+  std::vector<uint64_t> vertex_gids;
+  std::vector<std::array<uint32_t, 3>> faces;  // sorted by global face id
+  std::vector<uint64_t> face_gids;
+};
+
+class PatchDecimator {
+ public:
+  PatchDecimator(PatchInput input, const DecimateParams& params);
+
+  void prepare_round();
+  RoundSummary summarize() const;
+  // Owned candidates of the prepared round, sorted by key.
+  std::span<const Candidate> candidates() const { return candidates_; }
+  // Returns the number of faces removed.
+  uint64_t apply_cut(const RoundCut& cut);
+
+  uint64_t face_count() const { return faces_alive_ + passthrough_gids_.size(); }
+  uint64_t locked_vertices() const { return locked_count_; }
+  PatchOutput extract() const;
+
+ private:
+  struct Scratch;
+  enum : uint8_t { kDead = 1, kLocked = 2, kFrozen = 4 };
+
+  void build_corner_chains();
+  void lock_nonmanifold_vertices();
+  void compute_quadrics();
+  void compact_storage();
+  void refresh_best(uint32_t v, Scratch& s);
+  bool collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const;
+  void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
+  Vec3 edge_position(uint32_t a, uint32_t b) const;
+  EdgeKey lme_key(uint32_t v) const;
+  void collapse(const Candidate& c);
+  void compact_chain(uint32_t v);
+
+  DecimateParams params_;
+  // vertices
+  std::vector<Vec3> pos_;
+  std::vector<uint64_t> vgid_;
+  std::vector<Quadric> quadric_;
+  std::vector<uint8_t> vflag_;
+  std::vector<uint8_t> dirty_;
+  std::vector<uint32_t> head_;       // first corner of the vertex's chain
+  std::vector<uint32_t> best_;       // other endpoint of best edge, or kNone
+  std::vector<double> best_cost_;
+  std::vector<uint32_t> partner_;    // LME partner, or kNone (round scratch)
+  // faces; corner c = 3 * face + slot
+  std::vector<std::array<uint32_t, 3>> fv_;
+  std::vector<uint64_t> fgid_;
+  std::vector<uint8_t> falive_;
+  std::vector<uint32_t> next_;       // next corner of the same vertex
+  uint64_t faces_alive_ = 0;
+  // faces with a repeated vertex: passed through unchanged
+  std::vector<std::array<uint32_t, 3>> passthrough_;
+  std::vector<uint64_t> passthrough_gids_;
+  uint64_t locked_count_ = 0;
+
+  std::vector<Candidate> candidates_;
+};
+
+}  // namespace qemflow::nodes

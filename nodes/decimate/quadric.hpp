@@ -1,0 +1,46 @@
+#pragma once
+// Garland-Heckbert quadrics and the collapse placement/cost kernels.
+//
+// Contract: every function here is a pure function of its arguments, compiled once
+// (not inline), so the same inputs give the same bits wherever they are called - in
+// core or in any out-of-core patch. Callers that combine quadrics must do it in a
+// canonical order (see decimator.hpp); addition of two quadrics is commutative in
+// IEEE arithmetic, so Q_a + Q_b == Q_b + Q_a bit for bit.
+#include <array>
+
+namespace qemflow::nodes {
+
+using Vec3 = std::array<double, 3>;
+
+// Symmetric 4x4 matrix [A b; b^T c] stored as its 10 upper-triangle entries:
+// a00 a01 a02 a11 a12 a22 b0 b1 b2 c. Q(x) = x^T A x + 2 b.x + c.
+struct Quadric {
+  std::array<double, 10> q{};
+  Quadric& operator+=(const Quadric& o) {
+    for (int i = 0; i < 10; ++i) q[i] += o.q[i];
+    return *this;
+  }
+  friend Quadric operator+(Quadric a, const Quadric& b) { return a += b; }
+};
+
+// weight * (n.x + d)^2 for the plane through `point` with unit normal `unit_normal`.
+Quadric plane_quadric(const Vec3& unit_normal, const Vec3& point, double weight);
+
+// Area-weighted plane quadric of triangle (p0,p1,p2); zero for a degenerate triangle.
+Quadric face_quadric(const Vec3& p0, const Vec3& p1, const Vec3& p2);
+
+// Boundary-preserving quadric of the border edge (p,q) of a face with (unnormalised)
+// normal `face_normal`: the plane through the edge perpendicular to the face,
+// weighted by `weight` * |q - p|^2. Zero when degenerate.
+Quadric boundary_quadric(const Vec3& p, const Vec3& q, const Vec3& face_normal, double weight);
+
+// Q(x), clamped at 0 (rounding can make it slightly negative).
+double quadric_error(const Quadric& quadric, const Vec3& x);
+
+// The collapse position of an edge: the minimiser of `quadric` when its 3x3 part is
+// well conditioned; otherwise the minimiser restricted to the well-conditioned
+// eigen-directions, anchored at the edge midpoint (Lindstrom's stable fallback).
+// `lo` / `hi` are the endpoints ordered by global id so both ends compute the same.
+Vec3 collapse_position(const Quadric& quadric, const Vec3& lo, const Vec3& hi);
+
+}  // namespace qemflow::nodes

@@ -1,0 +1,61 @@
+#pragma once
+// simplify_in_core: the reference run of the decimator (DESIGN.md §3) on a whole mesh
+// held in memory - weld, one PatchDecimator with nothing frozen, LME rounds with the
+// global cut of cut.hpp until the target face count is reached.
+//
+// Contract: deterministic - the output (vertices sorted by global id, faces by global
+// face id, positions as computed) is identical for any oneTBB thread count. The target
+// is met exactly unless topology forbids (then within +2: closed meshes keep an even
+// face count, tetrahedra and locked regions cannot shrink). Never drops input faces
+// silently: faces with repeated vertices and faces around non-manifold vertices pass
+// through. Unreferenced vertices are not written.
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <vector>
+
+#include "nodes/decimate/cut.hpp"
+#include "nodes/decimate/decimator.hpp"
+#include "util/geometry.hpp"
+
+namespace qemflow::nodes {
+
+struct SimplifyOptions {
+  std::optional<uint64_t> target_faces;  // one of target_faces / ratio
+  std::optional<double> ratio;
+  bool weld = true;
+  double round_fraction = 0.1;  // most faces a non-final round may remove
+  DecimateParams params;
+  // Called after each round with (round, faces now); may be empty.
+  std::function<void(uint64_t, uint64_t)> on_round;
+};
+
+struct SimplifyStats {
+  uint64_t input_vertices = 0, input_faces = 0;
+  uint64_t welded_vertices = 0;      // vertices merged into an earlier duplicate
+  uint64_t locked_vertices = 0;
+  uint64_t target_faces = 0;
+  uint64_t output_vertices = 0, output_faces = 0;
+  uint64_t rounds = 0;
+  double seconds_setup = 0, seconds_rounds = 0, seconds_extract = 0;
+};
+
+struct SimplifyResult {
+  std::vector<Point> points;
+  std::vector<Triangle> triangles;
+  SimplifyStats stats;
+};
+
+// Consumes the input arrays (they are released as soon as the decimator holds its
+// own copy, which keeps peak memory low).
+SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangle>&& triangles,
+                                const SimplifyOptions& options);
+
+// The target face count the options ask for.
+uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options);
+
+// The round loop on one patch holding the whole mesh (exposed for tests/benchmarks).
+uint64_t run_rounds(PatchDecimator& decimator, uint64_t target_faces, double round_fraction,
+                    const std::function<void(uint64_t, uint64_t)>& on_round = {});
+
+}  // namespace qemflow::nodes
