@@ -1,0 +1,275 @@
+#include "measure/bvh.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+#include "measure/point_triangle.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::measure {
+namespace {
+
+constexpr uint32_t kLeafTarget = 4;     // SAH may stop splitting at or below this
+constexpr uint32_t kLeafMax = 16;       // never keep a leaf larger than this
+constexpr int kBins = 16;
+constexpr int kMedianDepth = 48;        // below this depth always split by object median
+constexpr int kStackSize = 128;         // > kMedianDepth + log2(2^32) + 1
+
+struct Box {
+  double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+                  std::numeric_limits<double>::infinity()};
+  double hi[3] = {-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+                  -std::numeric_limits<double>::infinity()};
+  void grow(const Point& p) {
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::min(lo[k], p[k]);
+      hi[k] = std::max(hi[k], p[k]);
+    }
+  }
+  void grow(const Box& b) {
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::min(lo[k], b.lo[k]);
+      hi[k] = std::max(hi[k], b.hi[k]);
+    }
+  }
+  double half_area() const {
+    if (hi[0] < lo[0]) return 0;
+    const double dx = hi[0] - lo[0], dy = hi[1] - lo[1], dz = hi[2] - lo[2];
+    return dx * dy + dy * dz + dz * dx;
+  }
+};
+
+// Float bounds that still contain the double bounds.
+float round_down(double x) {
+  float f = static_cast<float>(x);
+  if (static_cast<double>(f) > x) f = std::nextafter(f, -std::numeric_limits<float>::infinity());
+  return f;
+}
+float round_up(double x) {
+  float f = static_cast<float>(x);
+  if (static_cast<double>(f) < x) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
+struct Builder {
+  const std::vector<TriangleCorners>& triangles;
+  std::vector<Point> centroids;
+  std::vector<uint32_t> order;
+  std::vector<TriangleBvh::Node> nodes;
+
+  Box triangle_box(uint32_t t) const {
+    Box b;
+    for (const Point& p : triangles[t]) b.grow(p);
+    return b;
+  }
+
+  void make_node(uint32_t node, uint32_t begin, uint32_t end, const Box& box) {
+    auto& n = nodes[node];
+    for (int k = 0; k < 3; ++k) {
+      n.lo[k] = round_down(box.lo[k]);
+      n.hi[k] = round_up(box.hi[k]);
+    }
+    n.first = begin;
+    n.count = end - begin;
+  }
+
+  // Returns the split position in [begin, end), or begin when the range should be a leaf.
+  uint32_t split(uint32_t begin, uint32_t end, int depth) {
+    const uint32_t count = end - begin;
+    if (count <= kLeafTarget) return begin;
+    Box centroid_box;
+    for (uint32_t i = begin; i < end; ++i) centroid_box.grow(centroids[order[i]]);
+    int axis = 0;
+    for (int k = 1; k < 3; ++k)
+      if (centroid_box.hi[k] - centroid_box.lo[k] > centroid_box.hi[axis] - centroid_box.lo[axis]) axis = k;
+    const double extent = centroid_box.hi[axis] - centroid_box.lo[axis];
+    const uint32_t mid = begin + count / 2;
+    auto median_split = [&] {
+      std::nth_element(order.begin() + begin, order.begin() + mid, order.begin() + end,
+                       [&](uint32_t a, uint32_t b) {
+                         if (centroids[a][axis] != centroids[b][axis]) return centroids[a][axis] < centroids[b][axis];
+                         return a < b;
+                       });
+      return mid;
+    };
+    if (!(extent > 0)) return count <= kLeafMax ? begin : median_split();
+    if (depth >= kMedianDepth) return median_split();
+
+    const double scale = kBins / extent;
+    auto bin_of = [&](uint32_t t) {
+      int b = static_cast<int>((centroids[t][axis] - centroid_box.lo[axis]) * scale);
+      return std::clamp(b, 0, kBins - 1);
+    };
+    Box bin_box[kBins];
+    uint32_t bin_count[kBins] = {};
+    for (uint32_t i = begin; i < end; ++i) {
+      const int b = bin_of(order[i]);
+      ++bin_count[b];
+      bin_box[b].grow(triangle_box(order[i]));
+    }
+    double right_area[kBins];
+    uint32_t right_count[kBins];
+    Box acc;
+    uint32_t n = 0;
+    for (int b = kBins - 1; b > 0; --b) {
+      acc.grow(bin_box[b]);
+      n += bin_count[b];
+      right_area[b] = acc.half_area();
+      right_count[b] = n;
+    }
+    Box left;
+    uint32_t left_count = 0;
+    double best_cost = std::numeric_limits<double>::infinity();
+    int best_bin = -1;
+    for (int b = 1; b < kBins; ++b) {  // split between bins b-1 and b
+      left.grow(bin_box[b - 1]);
+      left_count += bin_count[b - 1];
+      if (left_count == 0 || right_count[b] == 0) continue;
+      const double cost = left.half_area() * left_count + right_area[b] * right_count[b];
+      if (cost < best_cost) {
+        best_cost = cost;
+        best_bin = b;
+      }
+    }
+    if (best_bin < 0) return count <= kLeafMax ? begin : median_split();
+    Box all = left;
+    all.grow(bin_box[kBins - 1]);
+    for (int b = 0; b < kBins; ++b) all.grow(bin_box[b]);
+    // Leaf cost ~ count triangle tests; a split costs a box test plus the SAH estimate.
+    const double parent_area = all.half_area();
+    if (count <= kLeafMax && parent_area > 0 && best_cost / parent_area + 1.0 >= count) return begin;
+    auto it = std::partition(order.begin() + begin, order.begin() + end,
+                             [&](uint32_t t) { return bin_of(t) < best_bin; });
+    const auto at = static_cast<uint32_t>(it - order.begin());
+    if (at == begin || at == end) return median_split();
+    return at;
+  }
+
+  void run() {
+    const auto count = static_cast<uint32_t>(triangles.size());
+    order.resize(count);
+    std::iota(order.begin(), order.end(), 0u);
+    centroids.resize(count);
+    for (uint32_t t = 0; t < count; ++t) {
+      const auto& c = triangles[t];
+      for (int k = 0; k < 3; ++k) centroids[t][k] = (c[0][k] + c[1][k] + c[2][k]) / 3.0;
+    }
+    nodes.reserve(count > 0 ? 2 * ((count + kLeafTarget - 1) / kLeafTarget) + 1 : 0);
+    if (count == 0) return;
+    struct Task {
+      uint32_t node, begin, end;
+      int depth;
+    };
+    std::vector<Task> tasks{{0, 0, count, 0}};
+    nodes.push_back({});
+    while (!tasks.empty()) {
+      const Task task = tasks.back();
+      tasks.pop_back();
+      Box box;
+      for (uint32_t i = task.begin; i < task.end; ++i) box.grow(triangle_box(order[i]));
+      make_node(task.node, task.begin, task.end, box);
+      const uint32_t at = split(task.begin, task.end, task.depth);
+      if (at == task.begin) continue;  // leaf
+      const auto left = static_cast<uint32_t>(nodes.size());
+      nodes.push_back({});
+      nodes.push_back({});
+      nodes[task.node].first = left;
+      nodes[task.node].count = 0;
+      tasks.push_back({left + 1, at, task.end, task.depth + 1});
+      tasks.push_back({left, task.begin, at, task.depth + 1});
+    }
+  }
+};
+
+inline double box_squared_distance(const TriangleBvh::Node& n, const Point& q) {
+  double d2 = 0;
+  for (int k = 0; k < 3; ++k) {
+    const double lo = n.lo[k], hi = n.hi[k];
+    const double d = q[k] < lo ? lo - q[k] : (q[k] > hi ? q[k] - hi : 0.0);
+    d2 += d * d;
+  }
+  return d2;
+}
+
+}  // namespace
+
+TriangleBvh TriangleBvh::build(std::vector<TriangleCorners> triangles, std::vector<uint64_t> ids) {
+  if (triangles.size() >= std::numeric_limits<uint32_t>::max())
+    throw Error(ErrorKind::internal, "TriangleBvh: more than 2^32-1 triangles in one tree");
+  if (!ids.empty() && ids.size() != triangles.size())
+    throw Error(ErrorKind::internal, "TriangleBvh: ids and triangles differ in length");
+  Builder builder{triangles, {}, {}, {}};
+  builder.run();
+  TriangleBvh bvh;
+  bvh.nodes_ = std::move(builder.nodes);
+  bvh.triangles_.resize(triangles.size());
+  bvh.ids_.resize(triangles.size());
+  for (size_t i = 0; i < builder.order.size(); ++i) {
+    const uint32_t t = builder.order[i];
+    bvh.triangles_[i] = triangles[t];
+    bvh.ids_[i] = ids.empty() ? t : ids[t];
+  }
+  return bvh;
+}
+
+bool TriangleBvh::nearest(const Point& query, Hit& hit) const {
+  return nearest(query, std::numeric_limits<double>::infinity(), hit);
+}
+
+bool TriangleBvh::nearest(const Point& query, double bound_squared, Hit& hit) const {
+  if (nodes_.empty()) return false;
+  struct Entry {
+    uint32_t node;
+    double d2;
+  };
+  Entry stack[kStackSize];
+  int top = 0;
+  double best = bound_squared;
+  bool found = false;
+  uint32_t node = 0;
+  double node_d2 = box_squared_distance(nodes_[0], query);
+  while (true) {
+    if (node_d2 < best) {
+      const Node& n = nodes_[node];
+      if (n.count > 0) {
+        for (uint32_t i = n.first; i < n.first + n.count; ++i) {
+          const auto& t = triangles_[i];
+          const Point c = closest_point_on_triangle(query, t[0], t[1], t[2]);
+          const double d2 = squared_distance(query, c);
+          if (d2 < best) {
+            best = d2;
+            found = true;
+            hit.squared_distance = d2;
+            hit.primitive = i;
+            hit.closest = c;
+          }
+        }
+      } else {
+        const double left = box_squared_distance(nodes_[n.first], query);
+        const double right = box_squared_distance(nodes_[n.first + 1], query);
+        const bool left_first = left <= right;
+        const uint32_t near_node = left_first ? n.first : n.first + 1;
+        const uint32_t far_node = left_first ? n.first + 1 : n.first;
+        const double near_d2 = left_first ? left : right, far_d2 = left_first ? right : left;
+        if (far_d2 < best) stack[top++] = {far_node, far_d2};
+        node = near_node;
+        node_d2 = near_d2;
+        continue;
+      }
+    }
+    if (top == 0) break;
+    --top;
+    node = stack[top].node;
+    node_d2 = stack[top].d2;
+  }
+  return found;
+}
+
+size_t TriangleBvh::memory_bytes() const {
+  return nodes_.capacity() * sizeof(Node) + triangles_.capacity() * sizeof(TriangleCorners) +
+         ids_.capacity() * sizeof(uint64_t);
+}
+
+}  // namespace qemflow::measure
