@@ -1,0 +1,220 @@
+#include "engine/governor.hpp"
+
+#include <algorithm>
+
+#include "config/size.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+using config::format_size;
+
+Lease::Lease(Lease&& other) noexcept
+    : governor_(other.governor_), owner_(other.owner_), bytes_(other.bytes_) {
+  other.governor_ = nullptr;
+  other.owner_ = nullptr;
+  other.bytes_ = 0;
+}
+
+Lease& Lease::operator=(Lease&& other) noexcept {
+  if (this != &other) {
+    release();
+    governor_ = other.governor_;
+    owner_ = other.owner_;
+    bytes_ = other.bytes_;
+    other.governor_ = nullptr;
+    other.owner_ = nullptr;
+    other.bytes_ = 0;
+  }
+  return *this;
+}
+
+void Lease::release() {
+  if (governor_) governor_->give_back(owner_, bytes_);
+  governor_ = nullptr;
+  owner_ = nullptr;
+  bytes_ = 0;
+}
+
+void Lease::shrink_to(uint64_t bytes) {
+  if (!governor_ || bytes >= bytes_) return;
+  governor_->give_back(owner_, bytes_ - bytes);
+  bytes_ = bytes;
+}
+
+bool Lease::try_grow(uint64_t extra) {
+  if (!governor_) return false;
+  if (!governor_->take_more(owner_, extra)) return false;
+  bytes_ += extra;
+  return true;
+}
+
+Lease Lease::split(uint64_t bytes) {
+  bytes = std::min(bytes, bytes_);
+  if (!governor_) return {};
+  bytes_ -= bytes;
+  return Lease(governor_, owner_, bytes);
+}
+
+Governor::Governor(uint64_t budget, uint64_t baseline) : budget_(budget), baseline_(baseline) {
+  if (baseline >= budget) {
+    throw Error(ErrorKind::resource,
+                "--mem-budget " + format_size(budget) + " is below the process's own footprint of " +
+                    format_size(baseline) + "; use --mem-budget " +
+                    format_size(baseline + (16u << 20)) + " or more");
+  }
+}
+
+uint64_t Governor::in_use() const {
+  std::lock_guard lock(mutex_);
+  return in_use_;
+}
+uint64_t Governor::peak_in_use() const {
+  std::lock_guard lock(mutex_);
+  return peak_;
+}
+uint64_t Governor::available() const {
+  std::lock_guard lock(mutex_);
+  return capacity() - in_use_;
+}
+
+void Governor::require_fits(const std::string& owner, uint64_t bytes) const {
+  if (bytes <= capacity()) return;
+  throw Error(ErrorKind::resource,
+              owner + " needs " + format_size(bytes) + " of memory but --mem-budget " +
+                  format_size(budget_) + " leaves " + format_size(capacity()) +
+                  " after the process's own " + format_size(baseline_) +
+                  "; the minimum budget is " + format_size(bytes + baseline_));
+}
+
+Governor::Owner* Governor::owner_record(const std::string& owner) {
+  auto [it, inserted] = owners_.try_emplace(owner);
+  if (inserted) it->second.stats.owner = owner;
+  return &it->second;
+}
+
+Lease Governor::grant(Owner* owner, uint64_t bytes, uint64_t asked) {
+  in_use_ += bytes;
+  peak_ = std::max(peak_, in_use_);
+  auto& s = owner->stats;
+  s.current += bytes;
+  s.peak = std::max(s.peak, s.current);
+  s.granted_total += bytes;
+  ++s.grants;
+  if (bytes < asked) ++s.partial_grants;
+  return Lease(this, owner, bytes);
+}
+
+Lease Governor::try_acquire(const std::string& owner, uint64_t bytes) {
+  return try_acquire_partial(owner, bytes, bytes);
+}
+
+// The one grant path. `wait`: block on the condition; `on_available`: register it
+// instead of failing. Returns an empty lease when nothing was granted.
+Lease Governor::grant_when_free(const std::string& owner, uint64_t min, uint64_t max, bool wait,
+                                const std::function<bool()>& stop,
+                                std::function<void()>* on_available) {
+  require_fits(owner, min);
+  max = std::max(min, max);
+  Lease lease;
+  uint64_t now = 0;
+  {
+    std::unique_lock lock(mutex_);
+    Owner* record = owner_record(owner);
+    bool denied = false;
+    while (capacity() - in_use_ < min) {
+      if (!denied) ++record->stats.denials;
+      denied = true;
+      if (on_available) waiters_.push_back({min, std::move(*on_available)});
+      if (!wait || (stop && stop())) return {};
+      released_.wait(lock);
+    }
+    lease = grant(record, std::min(max, capacity() - in_use_), max);
+    now = in_use_;
+  }
+  if (observer_) observer_(now);
+  return lease;
+}
+
+Lease Governor::try_acquire_partial(const std::string& owner, uint64_t min, uint64_t max) {
+  return grant_when_free(owner, min, max, false, {}, nullptr);
+}
+
+Lease Governor::acquire(const std::string& owner, uint64_t min, uint64_t max,
+                        const std::function<bool()>& stop) {
+  return grant_when_free(owner, min, max, true, stop, nullptr);
+}
+
+Lease Governor::acquire_or_notify(const std::string& owner, uint64_t min, uint64_t max,
+                                  std::function<void()> on_available) {
+  return grant_when_free(owner, min, max, false, {}, &on_available);
+}
+
+void Governor::give_back(void* owner, uint64_t bytes) {
+  uint64_t now = 0;
+  std::unique_lock lock(mutex_);
+  in_use_ -= bytes;
+  static_cast<Owner*>(owner)->stats.current -= bytes;
+  now = in_use_;
+  notify_after_release(lock);  // unlocks
+  if (observer_) observer_(now);
+}
+
+bool Governor::take_more(void* owner, uint64_t bytes) {
+  uint64_t now = 0;
+  {
+    std::lock_guard lock(mutex_);
+    auto* record = static_cast<Owner*>(owner);
+    if (capacity() - in_use_ < bytes) {
+      ++record->stats.denials;
+      return false;
+    }
+    in_use_ += bytes;
+    peak_ = std::max(peak_, in_use_);
+    record->stats.current += bytes;
+    record->stats.peak = std::max(record->stats.peak, record->stats.current);
+    record->stats.granted_total += bytes;
+    now = in_use_;
+  }
+  if (observer_) observer_(now);
+  return true;
+}
+
+// Wakes the waiters whose minimum now fits (in arrival order, each counted against
+// what is free so that one release does not wake more than it can feed).
+void Governor::notify_after_release(std::unique_lock<std::mutex>& lock) {
+  std::vector<std::function<void()>> ready;
+  uint64_t free = capacity() - in_use_;
+  for (auto it = waiters_.begin(); it != waiters_.end();) {
+    if (it->min <= free) {
+      free -= it->min;
+      ready.push_back(std::move(it->callback));
+      it = waiters_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  lock.unlock();
+  released_.notify_all();
+  for (auto& callback : ready) callback();
+}
+
+void Governor::wake_all() {
+  std::vector<std::function<void()>> ready;
+  {
+    std::lock_guard lock(mutex_);
+    for (auto& waiter : waiters_) ready.push_back(std::move(waiter.callback));
+    waiters_.clear();
+  }
+  released_.notify_all();
+  for (auto& callback : ready) callback();
+}
+
+std::vector<OwnerStats> Governor::owners() const {
+  std::lock_guard lock(mutex_);
+  std::vector<OwnerStats> result;
+  for (const auto& [name, record] : owners_) result.push_back(record.stats);
+  return result;
+}
+
+}  // namespace qemflow::engine

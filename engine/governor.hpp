@@ -1,0 +1,138 @@
+#pragma once
+// The memory governor: one byte budget per process, shared by every job in it.
+//
+// Contract
+// - Anything big (a block, a batch, a buffer, a window of vertices) is materialized
+//   only under a Lease. A Lease is a byte reservation granted under the cap and
+//   returned by RAII; it can shrink, grow (if room), or be split.
+// - Grants: all-or-nothing (try_acquire), partial (any amount in [min, max]: the
+//   caller must adapt to what it got — smaller batch, earlier spill), blocking
+//   (acquire waits until at least min is free), or "notify me" (acquire_or_notify,
+//   for a producer that must never block its thread, e.g. the I/O thread).
+// - A request whose minimum could never fit (min > budget - baseline) fails up front
+//   with Error(resource) naming the smallest budget that would do.
+// - The baseline is the process's own overhead (binary, thread stacks, allocator and
+//   library state) measured at start; it is reserved once and never leased.
+// - Accounting is per owner (a node's name): current, peak, total granted, number of
+//   grants, denials and waits, so the report can say who held what.
+// Thread safety: every member may be called from any thread.
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <list>
+#include <map>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace qemflow::engine {
+
+class Governor;
+
+class Lease {
+ public:
+  Lease() = default;
+  Lease(Lease&& other) noexcept;
+  Lease& operator=(Lease&& other) noexcept;
+  Lease(const Lease&) = delete;
+  Lease& operator=(const Lease&) = delete;
+  ~Lease() { release(); }
+
+  uint64_t bytes() const { return bytes_; }
+  explicit operator bool() const { return governor_ != nullptr; }
+  // Gives back everything above `bytes` (no-op if already smaller).
+  void shrink_to(uint64_t bytes);
+  // Takes `extra` more bytes if they are free right now; false (unchanged) if not.
+  bool try_grow(uint64_t extra);
+  // Moves `bytes` (at most all) of this lease into a new lease of the same owner.
+  Lease split(uint64_t bytes);
+  void release();
+
+ private:
+  friend class Governor;
+  Lease(Governor* governor, void* owner, uint64_t bytes)
+      : governor_(governor), owner_(owner), bytes_(bytes) {}
+  Governor* governor_ = nullptr;
+  void* owner_ = nullptr;  // the owner's accounting record inside the governor
+  uint64_t bytes_ = 0;
+};
+
+struct OwnerStats {
+  std::string owner;
+  uint64_t current = 0;
+  uint64_t peak = 0;
+  uint64_t granted_total = 0;  // sum of all grants (bytes)
+  uint64_t grants = 0;
+  uint64_t partial_grants = 0;  // granted less than asked
+  uint64_t denials = 0;         // try_* refused, or a notify/wait was needed
+};
+
+class Governor {
+ public:
+  // `budget`: the whole process's cap (--mem-budget). `baseline`: bytes the process
+  // needs for itself; must be below budget (else Error(resource)).
+  Governor(uint64_t budget, uint64_t baseline);
+  Governor(const Governor&) = delete;
+  Governor& operator=(const Governor&) = delete;
+
+  uint64_t budget() const { return budget_; }
+  uint64_t baseline() const { return baseline_; }
+  uint64_t capacity() const { return budget_ - baseline_; }  // what leases may hold
+  uint64_t in_use() const;
+  uint64_t peak_in_use() const;
+  uint64_t available() const;
+
+  // Throws Error(resource) if `bytes` could never be granted, naming the minimum budget.
+  void require_fits(const std::string& owner, uint64_t bytes) const;
+
+  // All or nothing; an empty Lease if not free now.
+  Lease try_acquire(const std::string& owner, uint64_t bytes);
+  // As much as is free now, clamped to [min, max]; empty if less than min is free.
+  Lease try_acquire_partial(const std::string& owner, uint64_t min, uint64_t max);
+  // Blocks until at least `min` is free, then grants up to `max`. `stop` is polled on
+  // every wake-up (wake_all() wakes waiters); if it returns true, returns an empty Lease.
+  Lease acquire(const std::string& owner, uint64_t min, uint64_t max,
+                const std::function<bool()>& stop = {});
+  // Grants now if at least `min` is free; else returns empty and calls `on_available`
+  // once (from whichever thread releases memory, outside the lock) when `min` may fit.
+  // The callback must be cheap and must not block (e.g. re-queue a task).
+  Lease acquire_or_notify(const std::string& owner, uint64_t min, uint64_t max,
+                          std::function<void()> on_available);
+
+  // Runs every pending notify callback and wakes blocked acquires (e.g. on cancel).
+  void wake_all();
+
+  std::vector<OwnerStats> owners() const;
+  // Called (outside the lock) with the new in-use total after every change; for
+  // trace counters. Set before any lease exists.
+  void set_observer(std::function<void(uint64_t in_use)> observer) { observer_ = std::move(observer); }
+
+ private:
+  friend class Lease;
+  struct Owner {
+    OwnerStats stats;
+  };
+  struct Waiter {
+    uint64_t min;
+    std::function<void()> callback;
+  };
+  Owner* owner_record(const std::string& owner);  // under lock
+  Lease grant(Owner* owner, uint64_t bytes, uint64_t asked);  // under lock
+  Lease grant_when_free(const std::string& owner, uint64_t min, uint64_t max, bool wait,
+                        const std::function<bool()>& stop, std::function<void()>* on_available);
+  void give_back(void* owner, uint64_t bytes);
+  bool take_more(void* owner, uint64_t bytes);
+  void notify_after_release(std::unique_lock<std::mutex>& lock);
+
+  const uint64_t budget_;
+  const uint64_t baseline_;
+  mutable std::mutex mutex_;
+  std::condition_variable released_;
+  uint64_t in_use_ = 0;
+  uint64_t peak_ = 0;
+  std::map<std::string, Owner> owners_;
+  std::list<Waiter> waiters_;
+  std::function<void(uint64_t)> observer_;
+};
+
+}  // namespace qemflow::engine

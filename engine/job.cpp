@@ -1,0 +1,102 @@
+#include "engine/job.hpp"
+
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+void CancelToken::cancel() {
+  std::vector<std::function<void()>> callbacks;
+  {
+    std::lock_guard lock(mutex_);
+    if (cancelled_.exchange(true)) return;
+    callbacks.swap(callbacks_);
+  }
+  for (auto& callback : callbacks) callback();
+}
+
+void CancelToken::on_cancel(std::function<void()> callback) {
+  {
+    std::lock_guard lock(mutex_);
+    if (!cancelled_) {
+      callbacks_.push_back(std::move(callback));
+      return;
+    }
+  }
+  callback();
+}
+
+Job::Job(Governor& governor, JobHooks hooks, JobSettings settings)
+    : governor_(governor),
+      hooks_(std::move(hooks)),
+      settings_(std::move(settings)),
+      trace_(settings_.trace_events),
+      arena_(settings_.threads > 0 ? settings_.threads : tbb::task_arena::automatic) {
+  if (trace_.enabled()) {
+    trace_lease_ = governor_.acquire(owner("trace"), settings_.trace_events * Trace::bytes_per_event,
+                                     settings_.trace_events * Trace::bytes_per_event);
+    governor_.set_observer([this](uint64_t in_use) { trace_.counter("governor bytes in use", double(in_use)); });
+  }
+  io_ = std::make_unique<IoThread>(&trace_, &activity_);
+  alive_ = std::make_shared<std::atomic<Job*>>(this);
+  if (hooks_.cancel) {
+    hooks_.cancel->on_cancel([alive = alive_] {
+      if (Job* job = alive->load()) {
+        job->fail(std::make_exception_ptr(Error(ErrorKind::cancelled, "cancelled")));
+      }
+    });
+  }
+}
+
+Job::~Job() {
+  alive_->store(nullptr);
+  io_.reset();  // drains: no I/O task may outlive the job
+  if (trace_.enabled()) governor_.set_observer({});
+}
+
+void Job::fail(std::exception_ptr error) {
+  {
+    std::lock_guard lock(mutex_);
+    if (!error_) error_ = error;
+  }
+  stopped_ = true;
+  governor_.wake_all();
+}
+
+void Job::check() {
+  if (!stopped()) return;
+  std::exception_ptr error;
+  {
+    std::lock_guard lock(mutex_);
+    error = error_;
+  }
+  if (error) std::rethrow_exception(error);
+  throw Error(ErrorKind::cancelled, "cancelled");
+}
+
+void Job::progress(double fraction, const std::string& stage) {
+  if (!hooks_.progress) return;
+  int64_t now = Clock::now().time_since_epoch().count();
+  int64_t last = last_progress_ns_.load();
+  if (fraction < 1.0 && now - last < 50'000'000) return;
+  if (!last_progress_ns_.compare_exchange_strong(last, now)) return;
+  hooks_.progress(fraction, stage);
+}
+
+StageStats& Job::stage(const std::string& name) {
+  std::lock_guard lock(mutex_);
+  for (auto& s : stages_) {
+    if (s->name == name) return *s;
+  }
+  stages_.push_back(std::make_unique<StageStats>());
+  stages_.back()->name = name;
+  return *stages_.back();
+}
+
+std::vector<const StageStats*> Job::stages() const {
+  std::lock_guard lock(const_cast<std::mutex&>(mutex_));
+  std::vector<const StageStats*> result;
+  for (const auto& s : stages_) result.push_back(s.get());
+  return result;
+}
+
+}  // namespace qemflow::engine

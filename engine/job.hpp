@@ -1,0 +1,114 @@
+#pragma once
+// A Job is one run of a pipeline inside a host process: it owns the I/O thread, the
+// compute arena, the trace and the per-stage accounting, and shares the process's
+// Governor with every other job. No global state, no exit(), nothing on stdout.
+//
+// Contract
+// - Errors: the first failure anywhere (a node body, an I/O task) is kept and stops
+//   the job; every other node sees stopped() and drains without doing work. The
+//   pipeline rethrows it at the end of the pass (qemflow::Error keeps its kind).
+// - Cancel: the host calls CancelToken::cancel() from any thread; the job stops as
+//   soon as every node has finished its current item, and ends with
+//   Error(cancelled); scratch and partial output are removed as on any failure.
+// - Progress: `progress(fraction, stage)` is called from pipeline threads, at most
+//   ~20 times a second; it must be cheap and thread-safe.
+#include <oneapi/tbb/task_arena.h>
+
+#include <atomic>
+#include <cstdint>
+#include <exception>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "engine/governor.hpp"
+#include "engine/io_thread.hpp"
+#include "engine/trace.hpp"
+
+namespace qemflow::engine {
+
+class CancelToken {
+ public:
+  void cancel();
+  bool cancelled() const { return cancelled_.load(std::memory_order_relaxed); }
+  // Called once on cancel (immediately if already cancelled); for wake-ups.
+  void on_cancel(std::function<void()> callback);
+
+ private:
+  std::atomic<bool> cancelled_{false};
+  std::mutex mutex_;
+  std::vector<std::function<void()>> callbacks_;
+};
+
+using ProgressCallback = std::function<void(double fraction, const std::string& stage)>;
+
+struct JobHooks {
+  ProgressCallback progress;                  // may be empty
+  std::shared_ptr<CancelToken> cancel;        // may be empty
+};
+
+struct JobSettings {
+  int threads = 0;                // compute threads; 0 = all cores
+  size_t trace_events = 0;        // 0 = no trace
+  std::string owner_prefix;       // prepended to governor owner names (jobs sharing a governor)
+};
+
+// Per-stage accounting for the report: wall time of the stage, bytes read and
+// written by its I/O, items processed.
+struct StageStats {
+  std::string name;
+  double seconds = 0;
+  std::atomic<uint64_t> bytes_read{0};
+  std::atomic<uint64_t> bytes_written{0};
+  std::atomic<uint64_t> items{0};
+};
+
+class Job {
+ public:
+  Job(Governor& governor, JobHooks hooks, JobSettings settings);
+  ~Job();
+  Job(const Job&) = delete;
+  Job& operator=(const Job&) = delete;
+
+  Governor& governor() { return governor_; }
+  IoThread& io() { return *io_; }
+  Trace& trace() { return trace_; }
+  Activity& activity() { return activity_; }
+  tbb::task_arena& arena() { return arena_; }
+  int threads() const { return arena_.max_concurrency(); }
+  std::string owner(const std::string& node) const { return settings_.owner_prefix + node; }
+
+  bool stopped() const { return stopped_.load(std::memory_order_relaxed); }
+  bool cancelled() const { return hooks_.cancel && hooks_.cancel->cancelled(); }
+  void fail(std::exception_ptr error);
+  IoThread::ErrorHandler error_handler() {
+    return [this](std::exception_ptr e) { fail(e); };
+  }
+  // Throws the job's error (or Error(cancelled)) if it stopped.
+  void check();
+
+  void progress(double fraction, const std::string& stage);
+  StageStats& stage(const std::string& name);  // created on first use, kept in order
+  std::vector<const StageStats*> stages() const;
+
+ private:
+  Governor& governor_;
+  JobHooks hooks_;
+  JobSettings settings_;
+  Trace trace_;
+  Activity activity_;
+  Lease trace_lease_;
+  tbb::task_arena arena_;
+  std::unique_ptr<IoThread> io_;
+  std::atomic<bool> stopped_{false};
+  std::mutex mutex_;
+  std::exception_ptr error_;
+  std::vector<std::unique_ptr<StageStats>> stages_;
+  std::atomic<int64_t> last_progress_ns_{0};
+  std::shared_ptr<std::atomic<Job*>> alive_;  // lets a cancel after the job's end do nothing
+};
+
+}  // namespace qemflow::engine

@@ -1,0 +1,47 @@
+#include "engine/process_memory.hpp"
+
+#include <malloc.h>
+
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <string>
+
+namespace qemflow::engine {
+
+namespace {
+uint64_t status_field_kib(const char* field) {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  size_t n = std::strlen(field);
+  while (std::getline(status, line)) {
+    if (line.compare(0, n, field) == 0 && line.size() > n && line[n] == ':') {
+      return std::stoull(line.substr(n + 1));
+    }
+  }
+  return 0;
+}
+}  // namespace
+
+uint64_t resident_bytes() { return status_field_kib("VmRSS") * 1024; }
+uint64_t peak_resident_bytes() { return status_field_kib("VmHWM") * 1024; }
+
+bool reset_peak_resident() {
+  FILE* file = std::fopen("/proc/self/clear_refs", "w");
+  if (!file) return false;
+  bool ok = std::fputs("5", file) >= 0;
+  ok = (std::fclose(file) == 0) && ok;
+  return ok;
+}
+
+void tune_allocator() {
+  mallopt(M_MMAP_THRESHOLD, 256 * 1024);
+  mallopt(M_TRIM_THRESHOLD, 1 << 20);
+  mallopt(M_ARENA_MAX, 2);
+}
+
+void trim_allocator() { malloc_trim(0); }
+
+uint64_t measure_baseline(uint64_t margin) { return resident_bytes() + margin; }
+
+}  // namespace qemflow::engine

@@ -1,0 +1,26 @@
+#pragma once
+// What the process really holds, from /proc/self/status, and the allocator settings
+// that make freed buffers go back to the OS so that resident memory follows leases.
+#include <cstdint>
+
+namespace qemflow::engine {
+
+uint64_t resident_bytes();       // VmRSS now
+uint64_t peak_resident_bytes();  // VmHWM: the high-water mark since start (or the last reset)
+// Resets VmHWM to the current RSS (Linux: "5" > /proc/self/clear_refs); false if refused.
+bool reset_peak_resident();
+
+// Process-wide glibc settings (call once, before the big work; idempotent):
+// a fixed mmap threshold so that every buffer above 256 KiB is its own mapping and is
+// unmapped on free (glibc's dynamic threshold would otherwise move big buffers onto
+// the heap, where freed space stays resident), few arenas, and a low trim threshold.
+void tune_allocator();
+// Returns freed heap memory to the OS (malloc_trim); cheap enough between passes.
+void trim_allocator();
+
+// The process's own footprint to reserve as the governor's baseline: RSS now plus a
+// margin for what grows later without a lease (thread stacks touched by work, zstd
+// contexts, allocator slack, trace buffers). `margin` defaults to 24 MiB.
+uint64_t measure_baseline(uint64_t margin = 24ull << 20);
+
+}  // namespace qemflow::engine

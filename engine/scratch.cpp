@@ -1,0 +1,272 @@
+#include "engine/scratch.hpp"
+
+#include <fcntl.h>
+#include <sys/statvfs.h>
+#include <unistd.h>
+#include <zstd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <memory>
+#include <random>
+
+#include "config/size.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+namespace {
+
+constexpr char magic[4] = {'Q', 'F', 'C', 'K'};
+constexpr uint16_t frame_version = 1;
+
+uint64_t fnv1a(const std::byte* data, size_t size) {
+  uint64_t h = 1469598103934665603ull;
+  for (size_t i = 0; i < size; ++i) {
+    h ^= uint64_t(data[i]);
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+template <class T>
+void put(std::byte* at, T value) { std::memcpy(at, &value, sizeof value); }
+template <class T>
+T get(const std::byte* at) {
+  T value;
+  std::memcpy(&value, at, sizeof value);
+  return value;
+}
+
+// One compression and one decompression context per thread, reused across frames
+// (creating them per frame would dominate small frames).
+struct ZstdContexts {
+  ZSTD_CCtx* c = ZSTD_createCCtx();
+  ZSTD_DCtx* d = ZSTD_createDCtx();
+  ~ZstdContexts() {
+    ZSTD_freeCCtx(c);
+    ZSTD_freeDCtx(d);
+  }
+};
+ZstdContexts& contexts() {
+  thread_local ZstdContexts ctx;
+  return ctx;
+}
+
+void write_header(std::byte* at, uint64_t tag, uint32_t record_size, uint64_t count,
+                  uint64_t payload) {
+  std::memcpy(at, magic, 4);
+  put<uint16_t>(at + 4, frame_version);
+  put<uint16_t>(at + 6, uint16_t(record_size));
+  put<uint32_t>(at + 8, 0);
+  put<uint64_t>(at + 12, tag);
+  put<uint64_t>(at + 20, count);
+  put<uint64_t>(at + 28, payload);
+  put<uint64_t>(at + 36, fnv1a(at, 36));
+  put<uint32_t>(at + 44, 0);
+}
+
+[[noreturn]] void corrupt(const std::string& where, const std::string& problem) {
+  throw Error(ErrorKind::internal, "scratch " + where + ": corrupt chunk: " + problem);
+}
+
+[[noreturn]] void io_failure(const std::filesystem::path& path, const char* what, int err) {
+  throw Error(ErrorKind::resource,
+              path.string() + ": " + what + " failed: " + std::strerror(err));
+}
+
+}  // namespace
+
+size_t frame_bound(size_t raw_bytes) { return frame_header_bytes + ZSTD_compressBound(raw_bytes); }
+
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
+                   int level) {
+  return encode_frame(tag, record_size, std::vector<Piece>{{records, count * record_size}},
+                      count, level);
+}
+
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
+                   size_t count, int level) {
+  size_t raw = count * record_size;
+  Bytes frame(frame_bound(raw));
+  ZSTD_CCtx* cctx = contexts().c;
+  ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, level);
+  ZSTD_CCtx_setParameter(cctx, ZSTD_c_checksumFlag, 1);
+  ZSTD_CCtx_setPledgedSrcSize(cctx, raw);
+  ZSTD_outBuffer out{frame.data() + frame_header_bytes, frame.size() - frame_header_bytes, 0};
+  for (size_t i = 0; i < pieces.size(); ++i) {
+    ZSTD_inBuffer in{pieces[i].data, pieces[i].bytes, 0};
+    bool last = i + 1 == pieces.size();
+    for (;;) {
+      size_t left = ZSTD_compressStream2(cctx, &out, &in, last ? ZSTD_e_end : ZSTD_e_continue);
+      if (ZSTD_isError(left)) {
+        throw Error(ErrorKind::internal, std::string("zstd: ") + ZSTD_getErrorName(left));
+      }
+      if (last ? left == 0 : in.pos == in.size) break;
+    }
+  }
+  if (pieces.empty()) {
+    ZSTD_inBuffer in{nullptr, 0, 0};
+    ZSTD_compressStream2(cctx, &out, &in, ZSTD_e_end);
+  }
+  write_header(frame.data(), tag, record_size, count, out.pos);
+  frame.resize(frame_header_bytes + out.pos);
+  return frame;
+}
+
+FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,
+                         const std::string& where) {
+  if (size < frame_header_bytes) corrupt(where, "shorter than its header");
+  if (std::memcmp(frame, magic, 4) != 0) corrupt(where, "bad magic");
+  if (get<uint16_t>(frame + 4) != frame_version) corrupt(where, "unknown version");
+  if (get<uint64_t>(frame + 36) != fnv1a(frame, 36)) corrupt(where, "header checksum mismatch");
+  FrameHeader header;
+  header.record_size = get<uint16_t>(frame + 6);
+  header.tag = get<uint64_t>(frame + 12);
+  header.count = get<uint64_t>(frame + 20);
+  header.payload_bytes = get<uint64_t>(frame + 28);
+  if (header.record_size != record_size) corrupt(where, "unexpected record size");
+  if (header.payload_bytes != size - frame_header_bytes) corrupt(where, "payload size mismatch");
+  size_t raw = header.count * record_size;
+  size_t start = out.size();
+  out.resize(start + raw);
+  size_t got = ZSTD_decompressDCtx(contexts().d, out.data() + start, raw,
+                                   frame + frame_header_bytes, header.payload_bytes);
+  if (ZSTD_isError(got)) corrupt(where, ZSTD_getErrorName(got));
+  if (got != raw) corrupt(where, "payload decodes to the wrong size");
+  return header;
+}
+
+ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expected_bytes) {
+  std::filesystem::path parent =
+      parent_in.empty() ? std::filesystem::temp_directory_path() : parent_in;
+  std::error_code ec;
+  if (!std::filesystem::is_directory(parent, ec)) {
+    throw Error(ErrorKind::resource, parent.string() + ": scratch directory does not exist");
+  }
+  struct statvfs fs {};
+  if (statvfs(parent.c_str(), &fs) == 0) {
+    uint64_t free_bytes = uint64_t(fs.f_bavail) * fs.f_frsize;
+    if (free_bytes < expected_bytes) {
+      throw Error(ErrorKind::resource,
+                  parent.string() + ": scratch needs about " + config::format_size(expected_bytes) +
+                      " free but only " + config::format_size(free_bytes) +
+                      " is available; choose another --scratch DIR");
+    }
+  }
+  std::random_device rd;
+  for (int attempt = 0;; ++attempt) {
+    dir_ = parent / ("qemflow-scratch-" + std::to_string(::getpid()) + "-" + std::to_string(rd() % 1000000));
+    if (std::filesystem::create_directory(dir_, ec)) break;
+    if (ec || attempt > 100) {
+      throw Error(ErrorKind::resource, parent.string() + ": cannot create a scratch directory" +
+                                           (ec ? ": " + ec.message() : std::string()));
+    }
+  }
+}
+
+ScratchStore::~ScratchStore() {
+  for (auto& f : files_) {
+    if (f.fd >= 0) ::close(f.fd);
+  }
+  std::error_code ec;
+  std::filesystem::remove_all(dir_, ec);
+}
+
+uint32_t ScratchStore::create_file(const std::string& name) {
+  std::lock_guard lock(mutex_);
+  files_.push_back({name});
+  return uint32_t(files_.size() - 1);
+}
+
+ScratchStore::File& ScratchStore::file(uint32_t id) {
+  std::lock_guard lock(mutex_);
+  return files_.at(id);
+}
+
+std::filesystem::path ScratchStore::path_of(const File& f) const {
+  return dir_ / (f.final ? f.name : f.name + ".part");
+}
+
+uint64_t ScratchStore::append(uint32_t id, const void* data, size_t size) {
+  File& f = file(id);
+  if (f.final) throw Error(ErrorKind::internal, "scratch: append to finalized " + f.name);
+  if (f.fd < 0) {
+    f.fd = ::open(path_of(f).c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    if (f.fd < 0) io_failure(path_of(f), "create", errno);
+  }
+  const char* p = static_cast<const char*>(data);
+  size_t left = size;
+  uint64_t offset = f.size;
+  while (left > 0) {
+    ssize_t n = ::pwrite(f.fd, p, left, off_t(f.size));
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      io_failure(path_of(f), "write", errno);
+    }
+    p += n;
+    left -= size_t(n);
+    f.size += uint64_t(n);
+  }
+  std::lock_guard lock(mutex_);
+  written_ += size;
+  on_disk_ += size;
+  peak_on_disk_ = std::max(peak_on_disk_, on_disk_);
+  return offset;
+}
+
+void ScratchStore::finalize(uint32_t id) {
+  File& f = file(id);
+  if (f.final) return;
+  if (f.fd < 0) {  // never written: an empty file
+    f.fd = ::open(path_of(f).c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    if (f.fd < 0) io_failure(path_of(f), "create", errno);
+  }
+  if (::close(f.fd) != 0) {
+    f.fd = -1;
+    io_failure(path_of(f), "close", errno);
+  }
+  f.fd = -1;
+  auto from = path_of(f);
+  f.final = true;
+  if (std::rename(from.c_str(), path_of(f).c_str()) != 0) io_failure(from, "rename", errno);
+}
+
+void ScratchStore::read(uint32_t id, uint64_t offset, void* out, size_t size) {
+  File& f = file(id);
+  if (!f.final) throw Error(ErrorKind::internal, "scratch: read of unfinished " + f.name);
+  if (f.fd < 0) {
+    f.fd = ::open(path_of(f).c_str(), O_RDONLY | O_CLOEXEC);
+    if (f.fd < 0) io_failure(path_of(f), "open", errno);
+  }
+  char* p = static_cast<char*>(out);
+  size_t left = size;
+  while (left > 0) {
+    ssize_t n = ::pread(f.fd, p, left, off_t(offset));
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      io_failure(path_of(f), "read", errno);
+    }
+    if (n == 0) throw Error(ErrorKind::internal, path_of(f).string() + ": scratch file is truncated");
+    p += n;
+    left -= size_t(n);
+    offset += uint64_t(n);
+  }
+  std::lock_guard lock(mutex_);
+  read_ += size;
+}
+
+void ScratchStore::remove(uint32_t id) {
+  File& f = file(id);
+  if (f.removed) return;
+  if (f.fd >= 0) ::close(f.fd);
+  f.fd = -1;
+  std::error_code ec;
+  std::filesystem::remove(path_of(f), ec);
+  f.removed = true;
+  std::lock_guard lock(mutex_);
+  on_disk_ -= std::min(on_disk_, f.size);
+}
+
+}  // namespace qemflow::engine

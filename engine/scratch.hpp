@@ -1,0 +1,104 @@
+#pragma once
+// The scratch store: a private directory of chunk files under --scratch (default: the
+// system temp dir) that lives exactly as long as the job. Each file is a sequence of
+// frames; a frame is one self-contained zstd chunk:
+//
+//   header (48 bytes, little-endian): magic "QFCK", version u16 = 1, record size u16,
+//     reserved u32, tag u64 (what the frame holds, e.g. its first vertex index),
+//     record count u64, payload bytes u64, header checksum u64 (FNV-1a of the above)
+//   payload: one zstd frame (fast level, content checksum on) of count × record size
+//
+// Contract
+// - The constructor checks free space for `expected_bytes` up front (Error(resource)
+//   naming the directory and the shortfall) and creates the private directory.
+// - Files are written under "NAME.part" and renamed to NAME by finalize(), so a file
+//   with its final name is complete; readers only get frames of finalized files.
+// - The destructor removes the whole directory: on success, on failure, on cancel.
+// - append/read/finalize do blocking file I/O: call them on the I/O thread only.
+//   encode_frame/decode_frame are pure CPU: call them on compute threads.
+// - Every failure is Error(resource) (disk full, read-only, vanished) or
+//   Error(internal) for a corrupt frame, each naming the file.
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <filesystem>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace qemflow::engine {
+
+using Bytes = std::vector<std::byte>;
+
+struct FrameHeader {
+  uint32_t record_size = 0;
+  uint64_t tag = 0;
+  uint64_t count = 0;
+  uint64_t payload_bytes = 0;
+};
+constexpr size_t frame_header_bytes = 48;
+
+// Worst-case encoded size of `raw_bytes` of records (for leases).
+size_t frame_bound(size_t raw_bytes);
+// Compresses count records of record_size bytes each into one frame.
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
+                   int level = 1);
+// Streaming variant: the records arrive as several pieces (pages), `count` in total.
+struct Piece {
+  const void* data;
+  size_t bytes;
+};
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
+                   size_t count, int level = 1);
+// Checks and decompresses a frame; appends its records to `out` (resized). `where`
+// names the frame in messages.
+FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,
+                         const std::string& where);
+
+// Where a frame lives.
+struct FrameRef {
+  uint32_t file = 0;
+  uint64_t offset = 0;
+  uint64_t bytes = 0;     // encoded size, header included
+  uint64_t count = 0;     // records
+  uint64_t tag = 0;
+};
+
+class ScratchStore {
+ public:
+  ScratchStore(const std::filesystem::path& parent, uint64_t expected_bytes);
+  ~ScratchStore();
+  ScratchStore(const ScratchStore&) = delete;
+  ScratchStore& operator=(const ScratchStore&) = delete;
+
+  const std::filesystem::path& dir() const { return dir_; }
+  // Registers a file (created on first append). Thread-safe.
+  uint32_t create_file(const std::string& name);
+  // I/O thread only. Returns the frame's offset in the file.
+  uint64_t append(uint32_t file, const void* data, size_t size);
+  void read(uint32_t file, uint64_t offset, void* out, size_t size);
+  void finalize(uint32_t file);
+  void remove(uint32_t file);
+
+  uint64_t bytes_written() const { return written_; }
+  uint64_t bytes_read() const { return read_; }
+  uint64_t peak_bytes_on_disk() const { return peak_on_disk_; }
+
+ private:
+  struct File {
+    std::string name;
+    uint64_t size = 0;
+    bool final = false;
+    bool removed = false;
+    int fd = -1;
+  };
+  std::filesystem::path path_of(const File& file) const;
+  File& file(uint32_t id);
+
+  std::filesystem::path dir_;
+  std::mutex mutex_;
+  std::deque<File> files_;  // a deque: references stay valid as files are added
+  uint64_t written_ = 0, read_ = 0, on_disk_ = 0, peak_on_disk_ = 0;
+};
+
+}  // namespace qemflow::engine

@@ -1,0 +1,211 @@
+#include "engine/spill.hpp"
+
+#include <oneapi/tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+#include <numeric>
+
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+namespace {
+constexpr size_t min_page_bytes = 16 << 10;
+constexpr size_t max_page_bytes = 1 << 20;
+}  // namespace
+
+uint64_t BucketSpill::min_lease_bytes(uint32_t record_size) {
+  return 3 * (8 * (min_page_bytes + record_size));
+}
+
+BucketSpill::BucketSpill(Job& job, ScratchStore& scratch, std::string name, uint32_t record_size,
+                         Lease lease, uint32_t expected_buckets, const char* span_name)
+    : job_(job),
+      scratch_(scratch),
+      name_(std::move(name)),
+      span_name_(span_name),
+      record_size_(record_size),
+      lease_(std::move(lease)) {
+  if (lease_.bytes() < min_lease_bytes(record_size)) {
+    throw Error(ErrorKind::internal, name_ + ": spill lease below its minimum");
+  }
+  uint64_t third = lease_.bytes() / 3;
+  size_t page = size_t(third / (4 * std::max<uint32_t>(expected_buckets, 1)));
+  page = std::clamp(page, min_page_bytes, max_page_bytes);
+  page_bytes_ = std::max<size_t>(page / record_size * record_size, record_size);
+  page_limit_ = std::max<uint64_t>(third / page_bytes_, 4);
+  in_flight_limit_ = lease_.bytes() - page_limit_ * page_bytes_;
+}
+
+BucketSpill::~BucketSpill() {
+  // On failure, writes may still be queued: they hold only shared state, and the
+  // scratch store outlives the I/O thread's queue (the job drains it).
+}
+
+const std::vector<FrameRef>& BucketSpill::frames(uint32_t bucket) const {
+  static const std::vector<FrameRef> none;
+  return bucket < buckets_.size() ? buckets_[bucket].frames : none;
+}
+
+uint64_t BucketSpill::records(uint32_t bucket) const {
+  return bucket < buckets_.size() ? buckets_[bucket].records : 0;
+}
+
+uint64_t BucketSpill::max_bucket_records() const {
+  uint64_t m = 0;
+  for (const auto& b : buckets_) m = std::max(m, b.records);
+  return m;
+}
+
+void BucketSpill::add(uint32_t bucket, const void* record) {
+  if (bucket >= buckets_.size()) buckets_.resize(bucket + 1);
+  Bucket& b = buckets_[bucket];
+  if (b.pages.empty() || b.used_in_last + record_size_ > page_bytes_) {
+    if (pages_held_ >= page_limit_) flush_largest();
+    b.pages.push_back(std::make_unique_for_overwrite<std::byte[]>(page_bytes_));
+    b.used_in_last = 0;
+    ++pages_held_;
+  }
+  std::memcpy(b.pages.back().get() + b.used_in_last, record, record_size_);
+  b.used_in_last += record_size_;
+  ++b.buffered;
+  ++b.records;
+  ++total_records_;
+}
+
+void BucketSpill::flush_largest() {
+  std::vector<uint32_t> order;
+  for (uint32_t i = 0; i < buckets_.size(); ++i) {
+    if (buckets_[i].buffered) order.push_back(i);
+  }
+  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
+    return buckets_[a].buffered > buckets_[b].buffered;
+  });
+  std::vector<uint32_t> chosen;
+  uint64_t pages = 0;
+  for (uint32_t i : order) {
+    chosen.push_back(i);
+    pages += buckets_[i].pages.size();
+    if (pages * 2 >= pages_held_) break;
+  }
+  flush(chosen);
+}
+
+void BucketSpill::wait_for_room(uint64_t bytes) {
+  std::unique_lock lock(shared_->mutex);
+  while (shared_->in_flight > 0 && shared_->in_flight + bytes > in_flight_limit_) {
+    if (job_.stopped()) break;
+    shared_->written.wait_for(lock, std::chrono::milliseconds(20));
+  }
+  shared_->in_flight += bytes;
+}
+
+void BucketSpill::flush(const std::vector<uint32_t>& which) {
+  if (which.empty()) return;
+  job_.check();
+  uint64_t bound = 0;
+  for (uint32_t i : which) bound += frame_bound(buckets_[i].buffered * record_size_);
+  wait_for_room(bound);
+  job_.check();
+
+  std::vector<Bytes> encoded(which.size());
+  tbb::parallel_for(size_t(0), which.size(), [&](size_t k) {
+    Bucket& b = buckets_[which[k]];
+    Span span(&job_.trace(), &job_.activity(), span_name_, Span::Kind::compute);
+    std::vector<Piece> pieces;
+    for (size_t p = 0; p < b.pages.size(); ++p) {
+      pieces.push_back({b.pages[p].get(), p + 1 == b.pages.size() ? b.used_in_last : page_bytes_});
+    }
+    encoded[k] = encode_frame(b.records - b.buffered, record_size_, pieces, b.buffered);
+    span.set_bytes(encoded[k].size());
+  });
+
+  uint64_t actual = 0;
+  for (size_t k = 0; k < which.size(); ++k) {
+    Bucket& b = buckets_[which[k]];
+    if (b.file == UINT32_MAX) b.file = scratch_.create_file(name_ + "-" + std::to_string(which[k]));
+    uint64_t size = encoded[k].size();
+    actual += encoded[k].capacity();  // what the frame holds until written
+    b.frames.push_back({b.file, b.file_bytes, size, b.buffered, b.records - b.buffered});
+    max_frame_records_ = std::max<uint64_t>(max_frame_records_, b.buffered);
+    max_frame_bytes_ = std::max<uint64_t>(max_frame_bytes_, size);
+    b.file_bytes += size;
+    encoded_bytes_ += size;
+    pages_held_ -= b.pages.size();
+    b.pages.clear();
+    b.pages.shrink_to_fit();
+    b.used_in_last = 0;
+    b.buffered = 0;
+  }
+  {
+    std::lock_guard lock(shared_->mutex);
+    shared_->in_flight -= bound - actual;
+  }
+  for (size_t k = 0; k < which.size(); ++k) {
+    auto frame = std::make_shared<Bytes>(std::move(encoded[k]));
+    uint32_t file = buckets_[which[k]].file;
+    uint64_t size = frame->capacity();
+    ScratchStore* scratch = &scratch_;
+    auto shared = shared_;
+    StageStats* stage = &job_.stage(name_);
+    job_.io().submit(
+        "scratch write",
+        [frame, file, size, scratch, shared, stage]() mutable {
+          struct Done {
+            std::shared_ptr<Shared> shared;
+            uint64_t size;
+            ~Done() {
+              {
+                std::lock_guard lock(shared->mutex);
+                shared->in_flight -= size;
+              }
+              shared->written.notify_all();
+            }
+          } done{shared, size};
+          scratch->append(file, frame->data(), frame->size());
+          stage->bytes_written += frame->size();
+          frame.reset();
+        },
+        job_.error_handler(), size);
+  }
+}
+
+void BucketSpill::finish() {
+  if (finished_) return;
+  // Flush in groups that fit the in-flight allowance.
+  std::vector<uint32_t> group;
+  uint64_t group_bytes = 0;
+  for (uint32_t i = 0; i < buckets_.size(); ++i) {
+    if (!buckets_[i].buffered) continue;
+    uint64_t bytes = frame_bound(buckets_[i].buffered * record_size_);
+    if (!group.empty() && group_bytes + bytes > in_flight_limit_) {
+      flush(group);
+      group.clear();
+      group_bytes = 0;
+    }
+    group.push_back(i);
+    group_bytes += bytes;
+  }
+  flush(group);
+  {
+    std::unique_lock lock(shared_->mutex);
+    while (shared_->in_flight > 0 && !job_.stopped()) {
+      shared_->written.wait_for(lock, std::chrono::milliseconds(20));
+    }
+  }
+  job_.check();
+  std::vector<uint32_t> files;
+  for (const auto& b : buckets_) {
+    if (b.file != UINT32_MAX) files.push_back(b.file);
+  }
+  ScratchStore* scratch = &scratch_;
+  job_.io().call("scratch finalize", [scratch, files] {
+    for (uint32_t f : files) scratch->finalize(f);
+  });
+  lease_.release();
+  finished_ = true;
+}
+
+}  // namespace qemflow::engine

@@ -1,0 +1,92 @@
+#pragma once
+// BucketSpill: records sorted into buckets (grid blocks, vertex ranges, face ranges)
+// and spilled to scratch as frames, under one lease.
+//
+// Contract
+// - add() is called by one thread at a time (a serial node). Records are copied into
+//   fixed-size pages; no page is ever reallocated, so the memory held is exactly
+//   pages × page size, which stays within a third of the lease.
+// - When the pages would exceed that third, the largest buckets are flushed: their
+//   pages are compressed (in parallel, on the calling compute arena) into frames and
+//   handed to the I/O thread. Compressed frames waiting for the disk stay within the
+//   other two thirds; if they would not, add() waits for the I/O thread (which never
+//   waits for compute, so this cannot deadlock).
+// - A smaller lease means smaller pages and earlier, more frequent flushes; nothing
+//   else changes (the minimum lease is min_lease_bytes()).
+// - finish() flushes everything, waits for the writes and finalizes the files; then
+//   frames(bucket) lists where each bucket's records are. Each bucket is one file.
+// - Within a bucket, frames keep the order in which records were added.
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "engine/governor.hpp"
+#include "engine/job.hpp"
+#include "engine/scratch.hpp"
+
+namespace qemflow::engine {
+
+class BucketSpill {
+ public:
+  // `expected_buckets` sizes the pages (more buckets, smaller pages).
+  BucketSpill(Job& job, ScratchStore& scratch, std::string name, uint32_t record_size,
+              Lease lease, uint32_t expected_buckets, const char* span_name = "spill");
+  ~BucketSpill();
+  static uint64_t min_lease_bytes(uint32_t record_size);
+
+  void add(uint32_t bucket, const void* record);
+  void finish();
+
+  uint32_t bucket_count() const { return uint32_t(buckets_.size()); }
+  const std::vector<FrameRef>& frames(uint32_t bucket) const;
+  uint64_t records(uint32_t bucket) const;
+  uint64_t records() const { return total_records_; }
+  uint64_t bytes_written() const { return encoded_bytes_; }
+  // Largest bucket in records (to size the lease that will read it back).
+  uint64_t max_bucket_records() const;
+  uint64_t max_frame_records() const { return max_frame_records_; }
+  uint64_t max_frame_bytes() const { return max_frame_bytes_; }
+
+ private:
+  struct Bucket {
+    std::vector<std::unique_ptr<std::byte[]>> pages;
+    size_t used_in_last = 0;  // bytes used in pages.back()
+    uint64_t buffered = 0;    // records in pages
+    uint64_t records = 0;     // records in total
+    uint32_t file = UINT32_MAX;
+    uint64_t file_bytes = 0;  // frames submitted so far: the next frame's offset
+    std::vector<FrameRef> frames;
+  };
+  void flush_largest();
+  void flush(const std::vector<uint32_t>& which);
+  void wait_for_room(uint64_t bytes);
+
+  Job& job_;
+  ScratchStore& scratch_;
+  std::string name_;
+  const char* span_name_;
+  uint32_t record_size_;
+  Lease lease_;
+  size_t page_bytes_;
+  uint64_t page_limit_;  // pages allowed in memory
+  uint64_t pages_held_ = 0;
+  uint64_t in_flight_limit_;
+  std::vector<Bucket> buckets_;
+  uint64_t total_records_ = 0;
+  uint64_t encoded_bytes_ = 0;
+  uint64_t max_frame_records_ = 0, max_frame_bytes_ = 0;
+  bool finished_ = false;
+
+  // Shared with I/O tasks, which may outlive a failed spill's stack frame.
+  struct Shared {
+    std::mutex mutex;
+    std::condition_variable written;
+    uint64_t in_flight = 0;
+  };
+  std::shared_ptr<Shared> shared_ = std::make_shared<Shared>();
+};
+
+}  // namespace qemflow::engine

@@ -1,0 +1,158 @@
+#pragma once
+// A stream pass: the flow-graph shape every pipeline stage of qemflow is built from.
+//
+//   read (I/O thread) ──► [sequencer] ──► transform (compute, concurrent) ──► sink (compute, serial)
+//
+// Node contract
+// - read(item, lease): runs on the dedicated I/O thread, one call at a time, in order.
+//   It fills `item` with the next unit (a batch, a frame) sized to what `lease` holds
+//   (it may shrink the lease to what it used) and returns false, leaving the item
+//   empty, at the end of the stream. It must only read (no compression, no parsing
+//   beyond what the reader library does).
+// - Backpressure: before every read, the pass asks the governor for a lease of
+//   [min_item_bytes, max_item_bytes]; if less than min is free, the read is parked
+//   (the I/O thread keeps serving writes) until a lease is released. Each item
+//   carries its lease through transform and sink and releases it when it is dropped.
+//   So memory, not a count, bounds how far the reader runs ahead, and no item is ever
+//   dropped (unlike limiter_node).
+// - transform(item): runs on compute threads, up to transform_concurrency at once, in
+//   any order unless `ordered` (then one at a time in read order, via sequencer_node).
+//   Decompression and format conversion belong here.
+// - sink(item): runs on compute threads, one at a time, in no particular order (read
+//   order when `ordered`). State that many items update (a spill, an output cursor) lives here.
+// - Cancel / failure: once the job has stopped, read ends the stream and transform and
+//   sink skip their work, so the graph drains quickly; run() then rethrows the error.
+#include <oneapi/tbb/flow_graph.h>
+
+#include <functional>
+#include <memory>
+
+#include "engine/job.hpp"
+
+namespace qemflow::engine {
+
+template <class Item>
+struct StreamPass {
+  const char* stage = "stage";          // stage name for the report
+  const char* read_name = "read";       // span names (string literals)
+  const char* transform_name = "transform";
+  const char* sink_name = "sink";
+  std::string owner = "reader";         // governor owner of the items' leases
+  uint64_t min_item_bytes = 1 << 20;
+  uint64_t max_item_bytes = 1 << 20;
+  std::function<bool(Item&, Lease&)> read;
+  std::function<void(Item&)> transform;  // optional
+  size_t transform_concurrency = tbb::flow::unlimited;
+  bool ordered = false;
+  std::function<void(Item&)> sink;       // optional
+};
+
+namespace detail {
+template <class Item>
+struct Envelope {
+  Lease lease;
+  uint64_t seq = 0;
+  Item item;
+};
+}  // namespace detail
+
+template <class Item>
+void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
+  using Env = detail::Envelope<Item>;
+  using Msg = std::shared_ptr<Env>;
+  namespace flow = tbb::flow;
+  job.governor().require_fits(job.owner(pass.owner), pass.min_item_bytes);
+  StageStats& stage = job.stage(pass.stage);
+  auto started = Clock::now();
+
+  job.arena().execute([&] {
+    flow::graph graph;
+    using Source = flow::async_node<flow::continue_msg, Msg>;
+    using Gateway = typename Source::gateway_type;
+
+    // The pump is a chain of I/O tasks, one per item; it lives until the last task.
+    struct Pump {
+      Gateway* gateway = nullptr;
+      uint64_t seq = 0;
+      bool done = false;
+      std::function<void()> step;
+    };
+    auto pump = std::make_shared<Pump>();
+    std::weak_ptr<Pump> weak = pump;
+    const std::string owner = job.owner(pass.owner);
+    pump->step = [&job, &pass, &stage, weak, owner] {
+      auto self = weak.lock();
+      if (!self || self->done) return;
+      auto finish = [&] {
+        self->done = true;
+        self->gateway->release_wait();
+      };
+      try {
+        if (job.stopped()) return finish();
+        Lease lease = job.governor().acquire_or_notify(
+            owner, pass.min_item_bytes, pass.max_item_bytes, [&job, weak, &pass] {
+              if (auto s = weak.lock()) job.io().submit(pass.read_name, s->step, {});
+            });
+        if (!lease) return;  // parked until memory is released
+        auto env = std::make_shared<Env>();
+        env->seq = self->seq++;
+        bool more = pass.read(env->item, lease);
+        if (!more || job.stopped()) return finish();
+        env->lease = std::move(lease);
+        ++stage.items;
+        self->gateway->try_put(env);
+        job.io().submit(pass.read_name, self->step, {});
+      } catch (...) {
+        job.fail(std::current_exception());
+        finish();
+      }
+    };
+
+    Source source(graph, flow::serial, [&](const flow::continue_msg&, Gateway& gateway) {
+      gateway.reserve_wait();
+      pump->gateway = &gateway;
+      job.io().submit(pass.read_name, pump->step, {});
+    });
+    auto guarded = [&job](const char* name, const std::function<void(Item&)>& body, Env& env) {
+      if (!body || job.stopped()) return;
+      Span span(&job.trace(), &job.activity(), name);
+      try {
+        body(env.item);
+      } catch (...) {
+        job.fail(std::current_exception());
+      }
+    };
+    auto consume = [&](const Msg& msg) {
+      guarded(pass.sink_name, pass.sink, *msg);
+      msg->item = Item{};  // the item's memory goes before its lease does
+      msg->lease.release();
+    };
+    // A serial function_node may start a newly arrived message before a queued one,
+    // so an ordered pass runs transform and sink in the one node behind the sequencer.
+    flow::function_node<Msg, Msg> transform(
+        graph, pass.ordered ? flow::serial : pass.transform_concurrency, [&](const Msg& msg) {
+          guarded(pass.transform_name, pass.transform, *msg);
+          if (pass.ordered) consume(msg);
+          return msg;
+        });
+    flow::function_node<Msg, flow::continue_msg> sink(graph, flow::serial, [&](const Msg& msg) {
+      consume(msg);
+      return flow::continue_msg();
+    });
+    flow::sequencer_node<Msg> sequencer(graph, [](const Msg& msg) { return size_t(msg->seq); });
+    if (pass.ordered) {
+      flow::make_edge(source, sequencer);
+      flow::make_edge(sequencer, transform);
+    } else {
+      flow::make_edge(source, transform);
+      flow::make_edge(transform, sink);
+    }
+    source.try_put(flow::continue_msg());
+    graph.wait_for_all();
+    // The last parked step (if any) finds the pump gone and does nothing.
+  });
+  stage.seconds += std::chrono::duration<double>(Clock::now() - started).count();
+  job.check();
+}
+
+}  // namespace qemflow::engine

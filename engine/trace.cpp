@@ -1,0 +1,149 @@
+#include "engine/trace.hpp"
+
+#include <oneapi/tbb/task_arena.h>
+
+#include <cstdio>
+#include <memory>
+
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+Activity::Activity() : start_(Clock::now()), last_(start_) {}
+
+void Activity::advance(Clock::time_point now) {
+  double dt = std::chrono::duration<double>(now - last_).count();
+  if (io_active_ > 0) io_ += dt;
+  if (compute_active_ > 0) compute_ += dt;
+  compute_threads_ += dt * compute_active_;
+  if (io_active_ > 0 && compute_active_ > 0) both_ += dt;
+  last_ = now;
+}
+
+void Activity::change(int io_delta, int compute_delta) {
+  std::lock_guard lock(mutex_);
+  advance(Clock::now());
+  io_active_ += io_delta;
+  compute_active_ += compute_delta;
+}
+
+Activity::Totals Activity::totals() const {
+  std::lock_guard lock(mutex_);
+  auto* self = const_cast<Activity*>(this);
+  self->advance(Clock::now());
+  Totals t;
+  t.wall_seconds = std::chrono::duration<double>(last_ - start_).count();
+  t.io_busy_seconds = io_;
+  t.compute_busy_seconds = compute_;
+  t.compute_thread_seconds = compute_threads_;
+  t.overlap_seconds = both_;
+  return t;
+}
+
+Trace::Trace(size_t max_events) : max_events_(max_events), start_(Clock::now()) {
+  if (max_events_) events_.reserve(max_events_);
+}
+
+double Trace::now_us() const {
+  return std::chrono::duration<double, std::micro>(Clock::now() - start_).count();
+}
+
+uint32_t Trace::thread_id() {
+  auto [it, inserted] = tids_.try_emplace(std::this_thread::get_id(), uint32_t(tids_.size() + 1));
+  if (inserted && !thread_names_.count(it->second)) {
+    int slot = tbb::this_task_arena::current_thread_index();
+    thread_names_[it->second] = slot >= 0 ? "compute-" + std::to_string(slot)
+                                          : "thread-" + std::to_string(it->second);
+  }
+  return it->second;
+}
+
+void Trace::name_thread(const std::string& name) {
+  if (!enabled()) return;
+  std::lock_guard lock(mutex_);
+  thread_names_[thread_id()] = name;
+}
+
+void Trace::span(const char* name, double start_us, double end_us, uint64_t bytes) {
+  if (!enabled()) return;
+  std::lock_guard lock(mutex_);
+  if (events_.size() >= max_events_) {
+    ++dropped_;
+    return;
+  }
+  events_.push_back({name, start_us, end_us - start_us, bytes, thread_id()});
+}
+
+void Trace::counter(const char* name, double value) {
+  if (!enabled()) return;
+  double now = now_us();
+  std::lock_guard lock(mutex_);
+  auto& last = last_counter_us_[name];
+  if (last != 0 && now - last < 200) return;
+  last = now;
+  if (events_.size() >= max_events_) {
+    ++dropped_;
+    return;
+  }
+  events_.push_back({name, now, -1, uint64_t(value), 0});
+}
+
+size_t Trace::size() const {
+  std::lock_guard lock(mutex_);
+  return events_.size();
+}
+
+namespace {
+std::string json_string(const std::string& text) {
+  std::string out = "\"";
+  for (char c : text) {
+    if (c == '"' || c == '\\') out += '\\';
+    if (static_cast<unsigned char>(c) < 0x20) continue;
+    out += c;
+  }
+  return out + "\"";
+}
+}  // namespace
+
+void Trace::write(const std::filesystem::path& path) const {
+  std::lock_guard lock(mutex_);
+  std::unique_ptr<FILE, int (*)(FILE*)> file(std::fopen(path.c_str(), "w"), &std::fclose);
+  if (!file) throw Error(ErrorKind::resource, path.string() + ": cannot write the trace");
+  FILE* f = file.get();
+  std::fprintf(f, "{\"displayTimeUnit\":\"ms\",\"traceEvents\":[\n");
+  std::fprintf(f, "{\"ph\":\"M\",\"pid\":1,\"tid\":0,\"name\":\"process_name\",\"args\":{\"name\":\"qemflow\"}}");
+  for (const auto& [tid, name] : thread_names_) {
+    std::fprintf(f, ",\n{\"ph\":\"M\",\"pid\":1,\"tid\":%u,\"name\":\"thread_name\",\"args\":{\"name\":%s}}",
+                 tid, json_string(name).c_str());
+    // "io" first, then compute threads, in Perfetto's track order.
+    int order = name == "io" ? 0 : int(tid) + 1;
+    std::fprintf(f, ",\n{\"ph\":\"M\",\"pid\":1,\"tid\":%u,\"name\":\"thread_sort_index\",\"args\":{\"sort_index\":%d}}",
+                 tid, order);
+  }
+  for (const auto& e : events_) {
+    if (e.dur < 0) {
+      std::fprintf(f, ",\n{\"ph\":\"C\",\"pid\":1,\"name\":%s,\"ts\":%.3f,\"args\":{\"bytes\":%llu}}",
+                   json_string(e.name).c_str(), e.ts, static_cast<unsigned long long>(e.value));
+    } else {
+      std::fprintf(f, ",\n{\"ph\":\"X\",\"pid\":1,\"tid\":%u,\"name\":%s,\"ts\":%.3f,\"dur\":%.3f,\"args\":{\"bytes\":%llu}}",
+                   e.tid, json_string(e.name).c_str(), e.ts, e.dur,
+                   static_cast<unsigned long long>(e.value));
+    }
+  }
+  std::fprintf(f, "\n],\"otherData\":{\"dropped_events\":%llu}}\n",
+               static_cast<unsigned long long>(dropped_.load()));
+  if (std::ferror(f)) throw Error(ErrorKind::resource, path.string() + ": cannot write the trace");
+}
+
+Span::Span(Trace* trace, Activity* activity, const char* name, Kind kind, uint64_t bytes)
+    : trace_(trace), activity_(activity), name_(name), kind_(kind), bytes_(bytes) {
+  if (trace_ && trace_->enabled()) start_us_ = trace_->now_us();
+  if (activity_) kind_ == Kind::io ? activity_->io_begin() : activity_->compute_begin();
+}
+
+Span::~Span() {
+  if (activity_) kind_ == Kind::io ? activity_->io_end() : activity_->compute_end();
+  if (trace_ && trace_->enabled()) trace_->span(name_, start_us_, trace_->now_us(), bytes_);
+}
+
+}  // namespace qemflow::engine

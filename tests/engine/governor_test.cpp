@@ -1,0 +1,141 @@
+#include "engine/governor.hpp"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <thread>
+
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+namespace {
+
+TEST(Governor, GrantsUnderTheCapAndDeniesAboveIt) {
+  Governor governor(1000, 100);  // 900 leasable
+  EXPECT_EQ(governor.capacity(), 900u);
+  Lease a = governor.try_acquire("a", 500);
+  ASSERT_TRUE(a);
+  EXPECT_EQ(a.bytes(), 500u);
+  EXPECT_EQ(governor.available(), 400u);
+  Lease b = governor.try_acquire("b", 401);
+  EXPECT_FALSE(b);  // all-or-nothing: 401 > 400
+  Lease c = governor.try_acquire("b", 400);
+  ASSERT_TRUE(c);
+  EXPECT_EQ(governor.available(), 0u);
+  c.release();
+  EXPECT_EQ(governor.available(), 400u);
+  a = Lease();
+  EXPECT_EQ(governor.in_use(), 0u);
+  EXPECT_EQ(governor.peak_in_use(), 900u);
+}
+
+TEST(Governor, PartialGrantGivesWhatIsFreeWithinMinMax) {
+  Governor governor(1000, 0);
+  Lease big = governor.try_acquire("big", 700);
+  Lease part = governor.try_acquire_partial("reader", 100, 500);
+  ASSERT_TRUE(part);
+  EXPECT_EQ(part.bytes(), 300u);  // less than asked: the node must adapt
+  Lease none = governor.try_acquire_partial("reader", 1, 10);
+  EXPECT_FALSE(none);
+  auto owners = governor.owners();
+  auto reader = std::find_if(owners.begin(), owners.end(), [](auto& o) { return o.owner == "reader"; });
+  ASSERT_NE(reader, owners.end());
+  EXPECT_EQ(reader->partial_grants, 1u);
+  EXPECT_EQ(reader->denials, 1u);
+  EXPECT_EQ(reader->peak, 300u);
+}
+
+TEST(Governor, RequestThatCanNeverFitFailsUpFrontNamingTheMinimumBudget) {
+  Governor governor(64ull << 20, 16ull << 20);
+  try {
+    governor.try_acquire("block writer", 100ull << 20);
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::resource);
+    std::string message = e.what();
+    EXPECT_NE(message.find("block writer"), std::string::npos) << message;
+    EXPECT_NE(message.find("minimum budget is 116 MiB"), std::string::npos) << message;
+  }
+  EXPECT_THROW(Governor(10 << 20, 20 << 20), Error);
+}
+
+TEST(Governor, BlockingAcquireWaitsExactlyUntilEnoughIsReleased) {
+  Governor governor(100, 0);
+  Lease held = governor.try_acquire("held", 80);
+  Lease small = governor.try_acquire("small", 10);
+  std::atomic<int> stage{0};
+  std::thread waiter([&] {
+    Lease got = governor.acquire("waiter", 50, 50);
+    EXPECT_EQ(got.bytes(), 50u);
+    stage = 2;
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(stage.load(), 0);
+  small.release();  // 20 free: not enough
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(stage.load(), 0);
+  held.shrink_to(40);  // 60 free
+  waiter.join();
+  EXPECT_EQ(stage.load(), 2);
+}
+
+TEST(Governor, BlockingAcquireStopsWhenAsked) {
+  Governor governor(100, 0);
+  Lease held = governor.try_acquire("held", 100);
+  std::atomic<bool> stop{false};
+  std::thread waiter([&] {
+    Lease got = governor.acquire("waiter", 50, 50, [&] { return stop.load(); });
+    EXPECT_FALSE(got);
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  stop = true;
+  governor.wake_all();
+  waiter.join();
+}
+
+TEST(Governor, NotifyCallbackFiresOnceWhenTheMinimumFits) {
+  Governor governor(100, 0);
+  Lease held = governor.try_acquire("held", 90);
+  int calls = 0;
+  Lease got = governor.acquire_or_notify("reader", 30, 30, [&] { ++calls; });
+  EXPECT_FALSE(got);
+  held.shrink_to(80);  // 20 free: not yet
+  EXPECT_EQ(calls, 0);
+  held.shrink_to(70);  // 30 free
+  EXPECT_EQ(calls, 1);
+  held.release();
+  EXPECT_EQ(calls, 1);
+}
+
+TEST(Governor, LeasesShrinkGrowAndSplitWithExactAccounting) {
+  Governor governor(100, 0);
+  Lease a = governor.try_acquire("a", 60);
+  EXPECT_TRUE(a.try_grow(40));
+  EXPECT_FALSE(a.try_grow(1));
+  Lease b = a.split(30);
+  EXPECT_EQ(a.bytes(), 70u);
+  EXPECT_EQ(b.bytes(), 30u);
+  EXPECT_EQ(governor.in_use(), 100u);
+  b.release();
+  a.shrink_to(10);
+  EXPECT_EQ(governor.in_use(), 10u);
+  auto owners = governor.owners();
+  ASSERT_EQ(owners.size(), 1u);
+  EXPECT_EQ(owners[0].peak, 100u);
+  EXPECT_EQ(owners[0].current, 10u);
+}
+
+TEST(Governor, ObserverSeesEveryChange) {
+  Governor governor(100, 0);
+  std::vector<uint64_t> seen;
+  governor.set_observer([&](uint64_t v) { seen.push_back(v); });
+  {
+    Lease a = governor.try_acquire("a", 10);
+    Lease b = governor.try_acquire("b", 20);
+  }
+  EXPECT_EQ(seen, (std::vector<uint64_t>{10, 30, 10, 0}));
+}
+
+}  // namespace
+}  // namespace qemflow::engine

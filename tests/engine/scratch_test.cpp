@@ -1,0 +1,106 @@
+#include "engine/scratch.hpp"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <numeric>
+
+#include "test_support.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+namespace {
+
+using qemflow::testing::TempDir;
+
+TEST(Frame, RoundTripsRecordsTagAndCount) {
+  std::vector<uint64_t> values(10000);
+  std::iota(values.begin(), values.end(), 7);
+  Bytes frame = encode_frame(42, sizeof(uint64_t), values.data(), values.size());
+  EXPECT_LT(frame.size(), values.size() * sizeof(uint64_t));
+  Bytes out;
+  FrameHeader header = decode_frame(frame.data(), frame.size(), sizeof(uint64_t), out, "t");
+  EXPECT_EQ(header.tag, 42u);
+  EXPECT_EQ(header.count, values.size());
+  ASSERT_EQ(out.size(), values.size() * sizeof(uint64_t));
+  EXPECT_EQ(std::memcmp(out.data(), values.data(), out.size()), 0);
+}
+
+TEST(Frame, PiecesEncodeLikeOneBuffer) {
+  std::vector<uint32_t> values(3000);
+  std::iota(values.begin(), values.end(), 0);
+  std::vector<Piece> pieces{{values.data(), 4000}, {values.data() + 1000, 8000}};
+  Bytes frame = encode_frame(0, 4, pieces, 3000);
+  Bytes out;
+  decode_frame(frame.data(), frame.size(), 4, out, "t");
+  EXPECT_EQ(std::memcmp(out.data(), values.data(), out.size()), 0);
+}
+
+TEST(Frame, CorruptionIsDetected) {
+  std::vector<uint64_t> values(1000, 5);
+  Bytes frame = encode_frame(0, 8, values.data(), values.size());
+  Bytes out;
+  Bytes bad_header = frame;
+  bad_header[20] ^= std::byte{1};
+  EXPECT_THROW(decode_frame(bad_header.data(), bad_header.size(), 8, out, "t"), Error);
+  Bytes bad_payload = frame;
+  bad_payload[frame.size() - 6] ^= std::byte{0x40};
+  out.clear();
+  EXPECT_THROW(decode_frame(bad_payload.data(), bad_payload.size(), 8, out, "t"), Error);
+  out.clear();
+  EXPECT_THROW(decode_frame(frame.data(), frame.size(), 4, out, "t"), Error);  // wrong record size
+}
+
+TEST(ScratchStore, FilesAreCompleteOnlyWhenFinalizedAndAllGoAtTheEnd) {
+  TempDir tmp;
+  std::filesystem::path dir;
+  {
+    ScratchStore store(tmp.path(), 1 << 20);
+    dir = store.dir();
+    EXPECT_EQ(dir.parent_path(), tmp.path());
+    uint32_t f = store.create_file("blocks-3");
+    std::string a = "hello ", b = "world";
+    EXPECT_EQ(store.append(f, a.data(), a.size()), 0u);
+    EXPECT_EQ(store.append(f, b.data(), b.size()), 6u);
+    EXPECT_TRUE(std::filesystem::exists(dir / "blocks-3.part"));
+    EXPECT_FALSE(std::filesystem::exists(dir / "blocks-3"));
+    char buf[5];
+    EXPECT_THROW(store.read(f, 6, buf, 5), Error);  // not finalized yet
+    store.finalize(f);
+    EXPECT_TRUE(std::filesystem::exists(dir / "blocks-3"));
+    store.read(f, 6, buf, 5);
+    EXPECT_EQ(std::string(buf, 5), "world");
+    EXPECT_EQ(store.bytes_written(), 11u);
+  }
+  EXPECT_FALSE(std::filesystem::exists(dir));
+}
+
+TEST(ScratchStore, NotEnoughFreeSpaceIsRefusedUpFront) {
+  TempDir tmp;
+  try {
+    ScratchStore store(tmp.path(), uint64_t(1) << 62);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::resource);
+    EXPECT_NE(std::string(e.what()).find("--scratch"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(std::filesystem::is_empty(tmp.path()));
+}
+
+TEST(ScratchStore, MissingOrReadOnlyDirectoryIsAResourceError) {
+  TempDir tmp;
+  EXPECT_THROW(ScratchStore(tmp / "nope", 0), Error);
+  if (::geteuid() == 0) GTEST_SKIP() << "root ignores directory permissions";
+  std::filesystem::permissions(tmp.path(), std::filesystem::perms::owner_read | std::filesystem::perms::owner_exec);
+  try {
+    ScratchStore store(tmp.path(), 0);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::resource);
+  }
+  std::filesystem::permissions(tmp.path(), std::filesystem::perms::owner_all);
+}
+
+}  // namespace
+}  // namespace qemflow::engine
