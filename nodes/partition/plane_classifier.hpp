@@ -41,7 +41,7 @@ struct PlaneClassifier {
 };
 
 struct SvmOptions {
-  double nu = 0.2;                     // lowered per pair when infeasible for its class sizes
+  double nu = 0.1;                     // best agreement in a sweep 0.02..0.4; lowered per pair when infeasible
   uint32_t max_points_per_class = 1000;
   double tolerance = 1e-3;             // libsvm eps
   double cache_megabytes = 16;
