@@ -78,6 +78,7 @@ class PlyReader final : public MeshReader {
   PlyReader(const std::filesystem::path& path, bool zstd) : source_(path, zstd) {
     header_ = read_ply_header(source_);
     line_ = header_.line_count + 1;
+    token_line_ = line_;
     info_.format = header_.format;
     info_.zstd = zstd;
     info_.vertex_count = header_.elements[header_.vertex_element].count;
@@ -128,7 +129,7 @@ class PlyReader final : public MeshReader {
  private:
   const std::string& name() const { return source_.name(); }
   std::string byte_place(uint64_t offset) const { return "byte " + std::to_string(offset); }
-  std::string line_place() const { return "line " + std::to_string(line_); }
+  std::string line_place() const { return "line " + std::to_string(token_line_); }
   std::string place(uint64_t offset) const {
     return header_.format == MeshFormat::ply_ascii ? line_place() : byte_place(offset);
   }
@@ -429,6 +430,7 @@ class PlyReader final : public MeshReader {
         i = source_.available();
       }
       token = std::string_view(p, i);
+      token_line_ = line_;
       source_.consume(i);
       return true;
     }
@@ -540,6 +542,7 @@ class PlyReader final : public MeshReader {
   size_t element_ = 0;     // element being read
   uint64_t done_ = 0;      // records of it already read
   uint64_t line_ = 0;      // ascii: current line
+  uint64_t token_line_ = 0;  // ascii: line of the last token read (what errors name)
   uint64_t vertices_out_ = 0;
   uint64_t triangles_out_ = 0;
   std::vector<uint64_t> polygon_;
