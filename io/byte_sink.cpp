@@ -90,6 +90,12 @@ void ByteSink::flush_buffer() {
 
 void ByteSink::write(const void* bytes, size_t n) {
   const char* p = static_cast<const char*>(bytes);
+  if (!zstd_ && n >= buffer_.size()) {  // large blocks skip the copy
+    flush_buffer();
+    write_file(p, n);
+    flushed_ += n;
+    return;
+  }
   while (n > 0) {
     if (used_ == buffer_.size()) flush_buffer();
     size_t take = std::min(n, buffer_.size() - used_);
