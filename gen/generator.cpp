@@ -18,6 +18,7 @@ namespace {
 
 using detail::CentreSpread;
 using detail::Surface;
+using io::IndexedMesh;
 
 struct ShapeKind {
   const char* name;
@@ -179,7 +180,7 @@ class Generator {
 
 class MemorySink final : public MeshSink {
  public:
-  explicit MemorySink(GeneratedMesh& mesh) : mesh_(mesh) {}
+  explicit MemorySink(IndexedMesh& mesh) : mesh_(mesh) {}
   void begin(uint64_t vertex_count, uint64_t triangle_count) override {
     mesh_.vertices.reserve(vertex_count);
     mesh_.triangles.reserve(triangle_count);
@@ -192,7 +193,7 @@ class MemorySink final : public MeshSink {
   }
 
  private:
-  GeneratedMesh& mesh_;
+  IndexedMesh& mesh_;
 };
 
 }  // namespace
@@ -255,8 +256,8 @@ void generate(const GenOptions& options, MeshSink& sink) {
           }));
 }
 
-GeneratedMesh generate_in_memory(const GenOptions& options) {
-  GeneratedMesh mesh;
+IndexedMesh generate_in_memory(const GenOptions& options) {
+  IndexedMesh mesh;
   MemorySink sink(mesh);
   generate(options, sink);
   return mesh;

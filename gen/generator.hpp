@@ -20,6 +20,7 @@
 #include <string_view>
 #include <vector>
 
+#include "io/indexed_mesh.hpp"
 #include "util/geometry.hpp"
 
 namespace qemflow::gen {
@@ -60,12 +61,9 @@ class MeshSink {
 // Streams the mesh into `sink`, using the current TBB arena's threads.
 void generate(const GenOptions& options, MeshSink& sink);
 
-// The whole mesh in memory; for tests and examples with small meshes.
-struct GeneratedMesh {
-  std::vector<Point> vertices;
-  std::vector<Triangle> triangles;
-};
-GeneratedMesh generate_in_memory(const GenOptions& options);
+// The whole mesh in memory (io's IndexedMesh, so io::write_mesh takes it as is); for
+// tests and examples with small meshes.
+io::IndexedMesh generate_in_memory(const GenOptions& options);
 
 // Streams the mesh to a file through io::open_mesh_writer (format by extension:
 // .ply binary, .obj, optionally .zst); the file appears only when complete.

@@ -13,6 +13,8 @@
 namespace qemflow::gen {
 namespace {
 
+using io::IndexedMesh;
+
 struct Topology {
   uint64_t edges = 0;
   std::string problem;  // empty when closed, oriented and 2-manifold
@@ -21,7 +23,7 @@ struct Topology {
 // Checks, for a triangle soup with vertex ids: indices in range, no repeated corner,
 // every directed edge at most once and its reverse present (so: closed, consistently
 // oriented, every edge in exactly two faces), and each vertex's faces one cycle.
-Topology check_topology(const GeneratedMesh& mesh) {
+Topology check_topology(const IndexedMesh& mesh) {
   Topology result;
   const uint64_t n = mesh.vertices.size();
   auto key = [n](uint64_t a, uint64_t b) { return a * n + b; };
@@ -67,7 +69,7 @@ Point cross(const Point& a, const Point& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
 double dot(const Point& a, const Point& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-Point face_normal(const GeneratedMesh& mesh, const Triangle& t) {
+Point face_normal(const IndexedMesh& mesh, const Triangle& t) {
   return cross(sub(mesh.vertices[t[1]], mesh.vertices[t[0]]), sub(mesh.vertices[t[2]], mesh.vertices[t[0]]));
 }
 
@@ -77,7 +79,7 @@ struct Geometry {
   double min_neighbour_cos = 1;  // smallest cosine between normals of faces sharing an edge
 };
 
-Geometry measure_geometry(const GeneratedMesh& mesh) {
+Geometry measure_geometry(const IndexedMesh& mesh) {
   Geometry g;
   std::vector<Point> normals;
   normals.reserve(mesh.triangles.size());
@@ -124,7 +126,7 @@ class GeneratedShape : public ::testing::TestWithParam<Case> {};
 TEST_P(GeneratedShape, IsAClosedOrientedManifoldWithExactCounts) {
   const GenOptions options{GetParam().shape, GetParam().faces, 7};
   const GenPlan expected = plan(options);
-  const GeneratedMesh mesh = generate_in_memory(options);
+  const IndexedMesh mesh = generate_in_memory(options);
   SCOPED_TRACE(expected.layout);
 
   EXPECT_EQ(mesh.triangles.size(), options.faces + options.faces % 2);
@@ -159,16 +161,16 @@ INSTANTIATE_TEST_SUITE_P(Sizes, GeneratedShape,
 // The checker itself must be able to fail: a flipped face, a missing face and a
 // pinched vertex are each reported.
 TEST(TopologyCheck, CatchesBrokenMeshes) {
-  const GeneratedMesh good = generate_in_memory({"blob", 1000, 1});
+  const IndexedMesh good = generate_in_memory({"blob", 1000, 1});
   ASSERT_EQ(check_topology(good).problem, "");
-  GeneratedMesh flipped = good;
+  IndexedMesh flipped = good;
   std::swap(flipped.triangles[10][0], flipped.triangles[10][1]);
   EXPECT_NE(check_topology(flipped).problem, "");
-  GeneratedMesh holed = good;
+  IndexedMesh holed = good;
   holed.triangles.pop_back();
   EXPECT_NE(check_topology(holed).problem, "");
   // Two copies sharing one vertex: every edge still has two faces, but that vertex has two fans.
-  GeneratedMesh pinched = good;
+  IndexedMesh pinched = good;
   const auto n = good.vertices.size();
   pinched.vertices.insert(pinched.vertices.end(), good.vertices.begin() + 1, good.vertices.end());
   for (Triangle t : good.triangles) {
@@ -184,7 +186,7 @@ TEST(TopologyCheck, CatchesBrokenMeshes) {
 // promises even at the coarsest size where the cube map distorts most.
 TEST(GeneratedBlob, IsStarShapedAroundTheOrigin) {
   for (uint64_t faces : {200, 5000}) {
-    const GeneratedMesh mesh = generate_in_memory({"blob", faces, 3});
+    const IndexedMesh mesh = generate_in_memory({"blob", faces, 3});
     for (const Triangle& t : mesh.triangles)
       ASSERT_GT(dot(mesh.vertices[t[0]], cross(mesh.vertices[t[1]], mesh.vertices[t[2]])), 0);
   }
@@ -192,7 +194,7 @@ TEST(GeneratedBlob, IsStarShapedAroundTheOrigin) {
 
 // The top of the slab is a heightfield: seen from above no top face is flipped.
 TEST(GeneratedTerrain, TopIsAHeightfieldAndBottomIsFlat) {
-  const GeneratedMesh mesh = generate_in_memory({"terrain", 20000, 3});
+  const IndexedMesh mesh = generate_in_memory({"terrain", 20000, 3});
   uint64_t bottom = 0, top = 0;
   for (const Triangle& t : mesh.triangles) {
     const Point n = face_normal(mesh, t);
@@ -212,9 +214,9 @@ TEST(GeneratedTerrain, TopIsAHeightfieldAndBottomIsFlat) {
 
 TEST(Generate, IsDeterministicAndSeedDependent) {
   for (const auto& shape : shape_names()) {
-    const GeneratedMesh a = generate_in_memory({shape, 30000, 11});
-    const GeneratedMesh b = generate_in_memory({shape, 30000, 11});
-    const GeneratedMesh c = generate_in_memory({shape, 30000, 12});
+    const IndexedMesh a = generate_in_memory({shape, 30000, 11});
+    const IndexedMesh b = generate_in_memory({shape, 30000, 11});
+    const IndexedMesh c = generate_in_memory({shape, 30000, 12});
     EXPECT_EQ(a.vertices, b.vertices) << shape;
     EXPECT_EQ(a.triangles, b.triangles) << shape;
     EXPECT_NE(a.vertices, c.vertices) << shape;
@@ -223,7 +225,7 @@ TEST(Generate, IsDeterministicAndSeedDependent) {
 
 TEST(Generate, DoesNotDependOnTheThreadCount) {
   for (const auto& shape : shape_names()) {
-    GeneratedMesh one, two;
+    IndexedMesh one, two;
     {
       tbb::global_control limit(tbb::global_control::max_allowed_parallelism, 1);
       one = generate_in_memory({shape, 120000, 5});

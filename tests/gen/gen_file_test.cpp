@@ -1,0 +1,75 @@
+// generate_to_file and the `qemflow gen` command: what reaches the disk is the
+// generated mesh, in the format the name asks for, and nothing on failure.
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <iterator>
+
+#include "gen/generator.hpp"
+#include "io/indexed_mesh.hpp"
+#include "test_support.hpp"
+
+namespace qemflow::gen {
+namespace {
+
+using testing::cli_path;
+using testing::run_command;
+using testing::TempDir;
+
+std::string slurp(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+TEST(GenerateToFile, WritesTheGeneratedMeshInEveryFormat) {
+  TempDir dir;
+  const GenOptions options{"figure", 3000, 9};
+  const io::IndexedMesh expected = generate_in_memory(options);
+  for (const char* name : {"m.ply", "m.obj", "m.ply.zst"}) {
+    const GenStats stats = generate_to_file(options, dir / name);
+    EXPECT_EQ(stats.face_count, 3000u);
+    EXPECT_EQ(stats.vertex_count, expected.vertices.size());
+    EXPECT_GT(stats.bytes_written, 0u);
+    const io::IndexedMesh read = io::read_mesh(dir / name);
+    EXPECT_EQ(read.triangles, expected.triangles) << name;
+    ASSERT_EQ(read.vertices.size(), expected.vertices.size()) << name;
+    for (size_t v = 0; v < read.vertices.size(); ++v)
+      for (int c = 0; c < 3; ++c)  // written as float by default (OBJ: shortest text of that float)
+        ASSERT_EQ(static_cast<float>(read.vertices[v][c]), static_cast<float>(expected.vertices[v][c]))
+            << name << " vertex " << v;
+  }
+}
+
+TEST(GenCommand, WritesIdenticalFilesAndPrintsASummary) {
+  TempDir dir;
+  std::string output;
+  const std::string gen = cli_path().string() + " gen ";
+  ASSERT_EQ(run_command(gen + (dir / "a.ply").string() + " --faces 20k --shape terrain --seed 4", &output), 0)
+      << output;
+  EXPECT_NE(output.find("terrain, "), std::string::npos) << output;
+  EXPECT_NE(output.find("20000 faces"), std::string::npos) << output;
+  ASSERT_EQ(run_command(gen + (dir / "b.ply").string() + " --faces 20000 --shape terrain --seed 4 --quiet", &output),
+            0)
+      << output;
+  EXPECT_EQ(output, "");
+  EXPECT_EQ(slurp(dir / "a.ply"), slurp(dir / "b.ply"));
+  ASSERT_EQ(run_command(gen + (dir / "c.ply").string() + " --faces 20000 --shape terrain --seed 5 --quiet"), 0);
+  EXPECT_NE(slurp(dir / "a.ply"), slurp(dir / "c.ply"));
+}
+
+TEST(GenCommand, RejectsBadArgumentsAsUsageErrorsWithoutOutput) {
+  TempDir dir;
+  const std::string out = (dir / "x.ply").string();
+  const std::string gen = cli_path().string() + " gen " + out;
+  std::string output;
+  EXPECT_EQ(run_command(gen + " --faces 10000 --shape teapot", &output), 2);
+  EXPECT_NE(output.find("blob, terrain, figure"), std::string::npos) << output;
+  EXPECT_EQ(run_command(gen + " --faces 99", &output), 2);
+  EXPECT_NE(output.find("at least 200"), std::string::npos) << output;
+  EXPECT_EQ(run_command(gen + " --faces 3Q", &output), 2);
+  EXPECT_EQ(run_command(gen, &output), 2);  // --faces is required
+  EXPECT_FALSE(std::filesystem::exists(out));
+}
+
+}  // namespace
+}  // namespace qemflow::gen
