@@ -115,8 +115,8 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
   return frame;
 }
 
-FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,
-                         const std::string& where) {
+FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t record_size,
+                              void* out, uint64_t max_records, const std::string& where) {
   if (size < frame_header_bytes) corrupt(where, "shorter than its header");
   if (std::memcmp(frame, magic, 4) != 0) corrupt(where, "bad magic");
   if (get<uint16_t>(frame + 4) != frame_version) corrupt(where, "unknown version");
@@ -128,14 +128,23 @@ FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_si
   header.payload_bytes = get<uint64_t>(frame + 28);
   if (header.record_size != record_size) corrupt(where, "unexpected record size");
   if (header.payload_bytes != size - frame_header_bytes) corrupt(where, "payload size mismatch");
+  if (header.count > max_records) corrupt(where, "more records than expected");
   size_t raw = header.count * record_size;
-  size_t start = out.size();
-  out.resize(start + raw);
-  size_t got = ZSTD_decompressDCtx(contexts().d, out.data() + start, raw,
-                                   frame + frame_header_bytes, header.payload_bytes);
+  size_t got = ZSTD_decompressDCtx(contexts().d, out, raw, frame + frame_header_bytes,
+                                   header.payload_bytes);
   if (ZSTD_isError(got)) corrupt(where, ZSTD_getErrorName(got));
   if (got != raw) corrupt(where, "payload decodes to the wrong size");
   return header;
+}
+
+FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,
+                         const std::string& where) {
+  if (size < frame_header_bytes) corrupt(where, "shorter than its header");
+  uint64_t count = get<uint64_t>(frame + 20);
+  if (count > (uint64_t(1) << 40) / std::max<uint32_t>(record_size, 1)) corrupt(where, "absurd record count");
+  size_t start = out.size();
+  out.resize(start + count * record_size);
+  return decode_frame_into(frame, size, record_size, out.data() + start, count, where);
 }
 
 ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expected_bytes) {

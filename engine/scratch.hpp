@@ -55,6 +55,10 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
 FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,
                          const std::string& where);
 
+// The same, into a caller's buffer of room for `max_records` records.
+FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t record_size,
+                              void* out, uint64_t max_records, const std::string& where);
+
 // Where a frame lives.
 struct FrameRef {
   uint32_t file = 0;

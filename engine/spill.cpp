@@ -21,11 +21,11 @@ uint64_t BucketSpill::min_lease_bytes(uint32_t record_size) {
 }
 
 BucketSpill::BucketSpill(Job& job, ScratchStore& scratch, std::string name, uint32_t record_size,
-                         Lease lease, uint32_t expected_buckets, const char* span_name)
+                         Lease lease, uint32_t expected_buckets, const char* stage)
     : job_(job),
       scratch_(scratch),
       name_(std::move(name)),
-      span_name_(span_name),
+      stage_(stage),
       record_size_(record_size),
       lease_(std::move(lease)) {
   if (lease_.bytes() < min_lease_bytes(record_size)) {
@@ -113,7 +113,7 @@ void BucketSpill::flush(const std::vector<uint32_t>& which) {
   std::vector<Bytes> encoded(which.size());
   tbb::parallel_for(size_t(0), which.size(), [&](size_t k) {
     Bucket& b = buckets_[which[k]];
-    Span span(&job_.trace(), &job_.activity(), span_name_, Span::Kind::compute);
+    Span span(&job_.trace(), &job_.activity(), "compress", Span::Kind::compute);
     std::vector<Piece> pieces;
     for (size_t p = 0; p < b.pages.size(); ++p) {
       pieces.push_back({b.pages[p].get(), p + 1 == b.pages.size() ? b.used_in_last : page_bytes_});
@@ -149,7 +149,7 @@ void BucketSpill::flush(const std::vector<uint32_t>& which) {
     uint64_t size = frame->capacity();
     ScratchStore* scratch = &scratch_;
     auto shared = shared_;
-    StageStats* stage = &job_.stage(name_);
+    StageStats* stage = &job_.stage(stage_);
     job_.io().submit(
         "scratch write",
         [frame, file, size, scratch, shared, stage]() mutable {

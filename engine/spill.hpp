@@ -33,7 +33,7 @@ class BucketSpill {
  public:
   // `expected_buckets` sizes the pages (more buckets, smaller pages).
   BucketSpill(Job& job, ScratchStore& scratch, std::string name, uint32_t record_size,
-              Lease lease, uint32_t expected_buckets, const char* span_name = "spill");
+              Lease lease, uint32_t expected_buckets, const char* stage);
   ~BucketSpill();
   static uint64_t min_lease_bytes(uint32_t record_size);
 
@@ -67,7 +67,7 @@ class BucketSpill {
   Job& job_;
   ScratchStore& scratch_;
   std::string name_;
-  const char* span_name_;
+  const char* stage_;  // the report's stage these writes belong to
   uint32_t record_size_;
   Lease lease_;
   size_t page_bytes_;

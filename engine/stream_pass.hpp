@@ -15,6 +15,10 @@
 //   carries its lease through transform and sink and releases it when it is dropped.
 //   So memory, not a count, bounds how far the reader runs ahead, and no item is ever
 //   dropped (unlike limiter_node).
+// - max_in_flight caps the items between read and the end of sink (a count, on top
+//   of the bytes): reading far ahead buys nothing once every thread is busy.
+// - transform(item, lease) and sink(item, lease) may split() part of the item's lease
+//   off to hand it, with the buffer it covers, to an I/O task (e.g. a write).
 // - transform(item): runs on compute threads, up to transform_concurrency at once, in
 //   any order unless `ordered` (then one at a time in read order, via sequencer_node).
 //   Decompression and format conversion belong here.
@@ -26,6 +30,8 @@
 
 #include <functional>
 #include <memory>
+#include <mutex>
+#include <utility>
 
 #include "engine/job.hpp"
 
@@ -41,10 +47,14 @@ struct StreamPass {
   uint64_t min_item_bytes = 1 << 20;
   uint64_t max_item_bytes = 1 << 20;
   std::function<bool(Item&, Lease&)> read;
-  std::function<void(Item&)> transform;  // optional
+  std::function<void(Item&, Lease&)> transform;  // optional
   size_t transform_concurrency = tbb::flow::unlimited;
   bool ordered = false;
-  std::function<void(Item&)> sink;       // optional
+  std::function<void(Item&, Lease&)> sink;       // optional
+  int max_in_flight = 16;
+  // Optional: the exact lease the next item needs (e.g. a frame's size); replaces
+  // min/max_item_bytes. Called on the I/O thread just before read.
+  std::function<uint64_t()> next_item_bytes;
 };
 
 namespace detail {
@@ -61,7 +71,7 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
   using Env = detail::Envelope<Item>;
   using Msg = std::shared_ptr<Env>;
   namespace flow = tbb::flow;
-  job.governor().require_fits(job.owner(pass.owner), pass.min_item_bytes);
+  if (!pass.next_item_bytes) job.governor().require_fits(job.owner(pass.owner), pass.min_item_bytes);
   StageStats& stage = job.stage(pass.stage);
   auto started = Clock::now();
 
@@ -76,6 +86,9 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
       uint64_t seq = 0;
       bool done = false;
       std::function<void()> step;
+      std::mutex mutex;  // guards the two below
+      int in_flight = 0;
+      bool parked = false;  // waiting for an item to leave (count limit)
     };
     auto pump = std::make_shared<Pump>();
     std::weak_ptr<Pump> weak = pump;
@@ -89,8 +102,17 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
       };
       try {
         if (job.stopped()) return finish();
+        {
+          std::lock_guard lock(self->mutex);
+          if (self->in_flight >= pass.max_in_flight) {
+            self->parked = true;
+            return;
+          }
+        }
+        uint64_t min_bytes = pass.min_item_bytes, max_bytes = pass.max_item_bytes;
+        if (pass.next_item_bytes) min_bytes = max_bytes = pass.next_item_bytes();
         Lease lease = job.governor().acquire_or_notify(
-            owner, pass.min_item_bytes, pass.max_item_bytes, [&job, weak, &pass] {
+            owner, min_bytes, max_bytes, [&job, weak, &pass] {
               if (auto s = weak.lock()) job.io().submit(pass.read_name, s->step, {});
             });
         if (!lease) return;  // parked until memory is released
@@ -100,6 +122,10 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
         if (!more || job.stopped()) return finish();
         env->lease = std::move(lease);
         ++stage.items;
+        {
+          std::lock_guard lock(self->mutex);
+          ++self->in_flight;
+        }
         self->gateway->try_put(env);
         job.io().submit(pass.read_name, self->step, {});
       } catch (...) {
@@ -113,11 +139,12 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
       pump->gateway = &gateway;
       job.io().submit(pass.read_name, pump->step, {});
     });
-    auto guarded = [&job](const char* name, const std::function<void(Item&)>& body, Env& env) {
+    auto guarded = [&job](const char* name, const std::function<void(Item&, Lease&)>& body,
+                          Env& env) {
       if (!body || job.stopped()) return;
       Span span(&job.trace(), &job.activity(), name);
       try {
-        body(env.item);
+        body(env.item, env.lease);
       } catch (...) {
         job.fail(std::current_exception());
       }
@@ -126,6 +153,13 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
       guarded(pass.sink_name, pass.sink, *msg);
       msg->item = Item{};  // the item's memory goes before its lease does
       msg->lease.release();
+      bool resume = false;
+      {
+        std::lock_guard lock(pump->mutex);
+        --pump->in_flight;
+        resume = std::exchange(pump->parked, false);
+      }
+      if (resume) job.io().submit(pass.read_name, pump->step, {});
     };
     // A serial function_node may start a newly arrived message before a queued one,
     // so an ordered pass runs transform and sink in the one node behind the sequencer.

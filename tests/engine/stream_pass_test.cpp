@@ -33,7 +33,7 @@ StreamPass<Numbers> counting_pass(uint64_t total, uint64_t& next, uint64_t min_i
     next += n;
     return true;
   };
-  pass.transform = [](Numbers& item) {
+  pass.transform = [](Numbers& item, Lease&) {
     for (uint64_t v : item.values) item.sum += v * v;
   };
   return pass;
@@ -48,7 +48,7 @@ TEST(StreamPass, EveryItemArrivesOnceUnderTheBudget) {
   Job job(governor, {}, {.threads = 2});
   uint64_t next = 0, sum = 0, items = 0;
   auto pass = counting_pass(100'000, next, 100, 400);
-  pass.sink = [&](Numbers& item) {
+  pass.sink = [&](Numbers& item, Lease&) {
     sum += item.sum;
     ++items;
   };
@@ -67,7 +67,7 @@ TEST(StreamPass, AReaderGrantedLessReadsSmallerBatches) {
   size_t largest = 0;
   auto pass = counting_pass(10'000, next, 10, 1'000);
   pass.owner = "reader";
-  pass.sink = [&](Numbers& item) {
+  pass.sink = [&](Numbers& item, Lease&) {
     sum += item.sum;
     largest = std::max(largest, item.values.size());
   };
@@ -81,6 +81,25 @@ TEST(StreamPass, AReaderGrantedLessReadsSmallerBatches) {
   EXPECT_LE(reader->peak, 1'000u);
 }
 
+TEST(StreamPass, ReaderRunsAtMostMaxInFlightItemsAhead) {
+  Governor governor(1 << 30, 0);  // memory is no limit here
+  Job job(governor, {}, {.threads = 2});
+  uint64_t next = 0;
+  std::atomic<int> in_flight{0}, most{0};
+  auto pass = counting_pass(20'000, next, 10, 10);
+  pass.max_in_flight = 3;
+  auto read = pass.read;
+  pass.read = [&](Numbers& item, Lease& lease) {
+    int now = ++in_flight;
+    most = std::max(most.load(), now);
+    return read(item, lease) || (--in_flight, false);
+  };
+  pass.sink = [&](Numbers&, Lease&) { --in_flight; };
+  run_stream_pass(job, pass);
+  EXPECT_LE(most.load(), 3);
+  EXPECT_EQ(next, 20'000u);
+}
+
 TEST(StreamPass, OrderedPassSeesReadOrder) {
   Governor governor(1 << 20, 0);
   Job job(governor, {}, {.threads = 2});
@@ -88,7 +107,7 @@ TEST(StreamPass, OrderedPassSeesReadOrder) {
   bool in_order = true;
   auto pass = counting_pass(50'000, next, 10, 100);
   pass.ordered = true;
-  pass.sink = [&](Numbers& item) {
+  pass.sink = [&](Numbers& item, Lease&) {
     in_order = in_order && item.first == expected_first;
     expected_first += item.values.size();
   };
@@ -108,7 +127,7 @@ TEST(StreamPass, ReadsRunOnTheIoThreadAndComputeElsewhere) {
     read_on_io = read_on_io && job.io().on_io_thread();
     return read(item, lease);
   };
-  pass.transform = [&](Numbers&) { transform_off_io = transform_off_io && !job.io().on_io_thread(); };
+  pass.transform = [&](Numbers&, Lease&) { transform_off_io = transform_off_io && !job.io().on_io_thread(); };
   run_stream_pass(job, pass);
   EXPECT_TRUE(read_on_io);
   EXPECT_TRUE(transform_off_io);
@@ -120,7 +139,7 @@ TEST(StreamPass, AFailingNodeStopsThePassWithItsError) {
   uint64_t next = 0;
   std::atomic<int> after_failure{0};
   auto pass = counting_pass(1'000'000, next, 10, 10);
-  pass.transform = [&](Numbers& item) {
+  pass.transform = [&](Numbers& item, Lease&) {
     if (item.first == 500) throw Error(ErrorKind::bad_input, "in.ply: 500: broken");
     if (item.first > 100'000) ++after_failure;
   };

@@ -1,0 +1,93 @@
+#pragma once
+// Blocks (paper §4.2): the input's faces, each with its global id, its global vertex
+// ids and its three vertex positions, sorted by barycenter into a uniform grid and
+// kept as zstd frames in scratch. Every later stage reads blocks, never the input.
+//
+// load_into_blocks() streams the input once through the I/O thread and keeps only
+// bounded state. The vertex→position dereference of each face is done in one of two
+// ways, chosen from the lease the loader gets:
+// - resident: all vertex positions fit the lease: they are held in memory while the
+//   faces stream by (one pass);
+// - out of core: vertices go to scratch in windows of consecutive indices; face
+//   corners are bucketed by window, each window is loaded in turn to resolve its
+//   corners, and resolved corners are regrouped by face-id range to rebuild faces.
+// Either way faces keep their input id and vertices their input index.
+// Memory: every buffer is sized from a lease of the governor; the loader refuses up
+// front (Error(resource)) a budget below its minimum.
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <vector>
+
+#include "engine/job.hpp"
+#include "engine/scratch.hpp"
+#include "util/geometry.hpp"
+
+namespace qemflow::engine {
+
+struct BlockFace {
+  uint64_t id = 0;                 // global face id (input triangle order)
+  Triangle vertices{};             // global vertex indices
+  std::array<Point, 3> positions{};
+};
+static_assert(sizeof(BlockFace) == 104);
+
+struct BlockGrid {
+  Point min{0, 0, 0}, max{0, 0, 0};
+  std::array<uint32_t, 3> dims{1, 1, 1};
+  uint32_t count() const { return dims[0] * dims[1] * dims[2]; }
+  uint32_t cell_of(const Point& p) const;
+  // About `blocks` cells over the box, cubes as near as the box allows.
+  static BlockGrid around(const Point& min, const Point& max, uint32_t blocks);
+};
+
+// Vertex positions by index, in windows of `window` consecutive vertices.
+struct VertexStore {
+  uint64_t count = 0;
+  uint64_t window = 0;
+  std::vector<Point> resident;                   // all of them, when resident
+  std::vector<std::vector<FrameRef>> windows;    // else frames per window (tag = first index)
+  bool is_resident() const { return windows.empty(); }
+};
+
+struct LoadOptions {
+  uint64_t faces_per_block = 1 << 20;  // sets the grid's cell count
+  // Tests: force the out-of-core dereference with windows of this many vertices and
+  // face ranges of this many faces (0 = from the lease).
+  uint64_t window_vertices = 0;
+  uint64_t range_faces = 0;
+  bool force_out_of_core = false;
+};
+
+struct LoadedMesh {
+  uint64_t vertex_count = 0;
+  uint64_t face_count = 0;
+  bool float_exact = true;  // every coordinate is a float (the input was float)
+  BlockGrid grid;
+  std::vector<std::vector<FrameRef>> blocks;  // frames of BlockFace per cell
+  std::vector<uint64_t> block_faces;          // faces per cell
+  VertexStore vertices;
+  uint64_t input_bytes = 0;
+  bool out_of_core = false;
+  Lease resident_lease;  // covers vertices.resident while it is held
+};
+
+LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
+                            const LoadOptions& options);
+
+// Streams the given frames of `record_size` records through the I/O thread (a stream
+// pass): `transform(header, records, lease)` runs on compute threads concurrently,
+// then `sink` (optional) one at a time. `records` holds header.count decoded records;
+// each item's lease covers the encoded frame, the records, and `out_record_size`
+// bytes per record for what transform makes of them.
+using FrameUse = std::function<void(const FrameHeader&, Bytes& records, Lease& lease)>;
+void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
+                    const std::vector<FrameRef>& frames, uint32_t record_size,
+                    const FrameUse& transform, const FrameUse& sink, uint32_t out_record_size);
+
+// Loads vertices [window * store.window, +store.window) into `out` (resident or not).
+void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& store, uint64_t window,
+                        Point* out);
+
+}  // namespace qemflow::engine

@@ -1,0 +1,536 @@
+#include <oneapi/tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "config/size.hpp"
+#include "engine/blocks.hpp"
+#include "engine/process_memory.hpp"
+#include "engine/spill.hpp"
+#include "engine/stream_pass.hpp"
+#include "io/mesh_stream.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+namespace {
+
+struct CornerRef {
+  uint64_t corner;  // face id * 3 + corner
+  uint64_t vertex;
+};
+struct ResolvedCorner {
+  uint64_t corner;
+  uint64_t vertex;
+  Point position;
+};
+
+// Lease per element of an input batch: the batch itself (24 bytes per vertex or
+// triangle) plus what the transform makes of it (a compressed vertex frame) plus the
+// reader library's own buffers, measured at well under this.
+constexpr uint64_t bytes_per_input_element = 96;
+constexpr uint64_t min_input_lease = 64 * bytes_per_input_element;
+constexpr uint64_t max_input_lease = 4ull << 20;
+
+struct Box {
+  Point min{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+            std::numeric_limits<double>::infinity()};
+  Point max{-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+            -std::numeric_limits<double>::infinity()};
+  bool float_exact = true;
+  void add(const Point& p) {
+    for (int i = 0; i < 3; ++i) {
+      min[i] = std::min(min[i], p[i]);
+      max[i] = std::max(max[i], p[i]);
+      float_exact = float_exact && double(float(p[i])) == p[i];
+    }
+  }
+  void add(const Box& other) {
+    for (int i = 0; i < 3; ++i) {
+      min[i] = std::min(min[i], other.min[i]);
+      max[i] = std::max(max[i], other.max[i]);
+    }
+    float_exact = float_exact && other.float_exact;
+  }
+};
+
+Point barycenter(const std::array<Point, 3>& p) {
+  return {(p[0][0] + p[1][0] + p[2][0]) / 3, (p[0][1] + p[1][1] + p[2][1]) / 3,
+          (p[0][2] + p[1][2] + p[2][2]) / 3};
+}
+
+[[noreturn]] void index_out_of_range(const std::filesystem::path& input, uint64_t face,
+                                     uint64_t vertex, uint64_t count) {
+  throw_bad_input(input.string(), "triangle " + std::to_string(face),
+                  "vertex index " + std::to_string(vertex) + " out of range (" +
+                      std::to_string(count) + " vertices)");
+}
+
+uint32_t block_count_for(uint64_t faces, uint64_t faces_per_block) {
+  uint64_t blocks = (faces + faces_per_block - 1) / std::max<uint64_t>(faces_per_block, 1);
+  return uint32_t(std::clamp<uint64_t>(blocks, 1, 4096));
+}
+
+// One input batch on its way through the load pass.
+struct InputItem {
+  io::MeshBatch batch;
+  Box box;
+  std::vector<std::pair<uint64_t, Bytes>> vertex_frames;  // (window, frame)
+};
+
+// The input reader, driven from the I/O thread only.
+struct InputStream {
+  std::unique_ptr<io::MeshReader> reader;
+  std::filesystem::path path;
+  uint64_t size = 0;
+  bool read(InputItem& item, Lease& lease) {
+    size_t elements = std::max<uint64_t>(lease.bytes() / bytes_per_input_element, 64);
+    return reader->next(item.batch, elements) &&
+           (!item.batch.vertices.empty() || !item.batch.triangles.empty());
+  }
+};
+
+// Writes finished vertex frames to one scratch file per window. Serial (a sink).
+class VertexFrameWriter {
+ public:
+  VertexFrameWriter(Job& job, ScratchStore& scratch, VertexStore& store)
+      : job_(job), scratch_(scratch), store_(store) {}
+  void write(uint64_t window, Bytes frame, uint64_t count, uint64_t first, Lease lease) {
+    if (window >= store_.windows.size()) {
+      store_.windows.resize(window + 1);
+      files_.resize(window + 1, UINT32_MAX);
+      offsets_.resize(window + 1, 0);
+    }
+    if (files_[window] == UINT32_MAX) {
+      files_[window] = scratch_.create_file("vertices-" + std::to_string(window));
+    }
+    uint64_t size = frame.size();
+    store_.windows[window].push_back({files_[window], offsets_[window], size, count, first});
+    offsets_[window] += size;
+    auto shared = std::make_shared<std::pair<Bytes, Lease>>(std::move(frame), std::move(lease));
+    ScratchStore* scratch = &scratch_;
+    uint32_t file = files_[window];
+    StageStats* stage = &job_.stage("load");
+    job_.io().submit(
+        "scratch write",
+        [shared, scratch, file, stage] {
+          scratch->append(file, shared->first.data(), shared->first.size());
+          stage->bytes_written += shared->first.size();
+          shared->first = Bytes();
+          shared->second.release();
+        },
+        job_.error_handler(), size);
+  }
+  void finish() {
+    ScratchStore* scratch = &scratch_;
+    std::vector<uint32_t> files;
+    for (uint32_t f : files_) {
+      if (f != UINT32_MAX) files.push_back(f);
+    }
+    job_.io().call("scratch finalize", [scratch, files] {
+      for (uint32_t f : files) scratch->finalize(f);
+    });
+    job_.check();
+  }
+
+ private:
+  Job& job_;
+  ScratchStore& scratch_;
+  VertexStore& store_;
+  std::vector<uint32_t> files_;
+  std::vector<uint64_t> offsets_;
+};
+
+class Loader {
+ public:
+  Loader(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
+         const LoadOptions& options)
+      : job_(job), scratch_(scratch), options_(options) {
+    input_.path = input;
+    input_.reader = job_.io().call("open input", [&] { return io::open_mesh_reader(input); });
+    input_.size = input_.reader->info().file_size;
+    capacity_ = job_.governor().available();
+    uint64_t needed = BucketSpill::min_lease_bytes(sizeof(BlockFace)) * 2 + 4 * max_input_lease;
+    job_.governor().require_fits(job_.owner("loader"), needed);
+  }
+
+  LoadedMesh run() {
+    const auto& info = input_.reader->info();
+    mesh_.input_bytes = input_.size;
+    bool resident = info.vertex_count && !options_.force_out_of_core &&
+                    *info.vertex_count * sizeof(Point) <= capacity_ / 2;
+    if (resident) {
+      load_resident(*info.vertex_count, info.polygon_count.value_or(0));
+    } else {
+      load_out_of_core();
+    }
+    input_.reader.reset();
+    return std::move(mesh_);
+  }
+
+ private:
+  Lease spill_lease(const char* owner, double fraction, uint32_t record_size) {
+    uint64_t min = BucketSpill::min_lease_bytes(record_size);
+    uint64_t max = std::max<uint64_t>(min, uint64_t(double(capacity_) * fraction));
+    return job_.governor().acquire(job_.owner(owner), min, max, [this] { return job_.stopped(); });
+  }
+
+  StreamPass<InputItem> input_pass() {
+    StreamPass<InputItem> pass;
+    pass.stage = "load";
+    pass.read_name = "read input";
+    pass.owner = "input batches";
+    pass.min_item_bytes = min_input_lease;
+    pass.max_item_bytes = std::clamp<uint64_t>(capacity_ / 32, min_input_lease, max_input_lease);
+    pass.read = [this](InputItem& item, Lease& lease) {
+      bool more = input_.read(item, lease);
+      job_.stage("load").bytes_read = input_.reader->bytes_read();
+      if (input_.size) job_.progress(progress_span_ * double(input_.reader->bytes_read()) / double(input_.size), "load");
+      return more;
+    };
+    return pass;
+  }
+
+  void build_grid(uint64_t faces) {
+    mesh_.grid = BlockGrid::around(box_.min, box_.max, block_count_for(faces, options_.faces_per_block));
+    mesh_.blocks.assign(mesh_.grid.count(), {});
+    mesh_.block_faces.assign(mesh_.grid.count(), 0);
+  }
+
+  void add_face(BucketSpill& blocks, const BlockFace& face) {
+    uint32_t cell = mesh_.grid.cell_of(barycenter(face.positions));
+    blocks.add(cell, &face);
+    ++mesh_.block_faces[cell];
+  }
+
+  void collect_blocks(BucketSpill& blocks) {
+    blocks.finish();
+    for (uint32_t c = 0; c < mesh_.grid.count(); ++c) mesh_.blocks[c] = blocks.frames(c);
+  }
+
+  // All vertex positions in memory; faces resolved as they stream by.
+  void load_resident(uint64_t vertex_count, uint64_t polygon_count) {
+    progress_span_ = 0.8;
+    Lease vertex_lease = job_.governor().acquire(job_.owner("vertex positions"), vertex_count * sizeof(Point),
+                                                 vertex_count * sizeof(Point));
+    auto& positions = mesh_.vertices.resident;
+    positions.resize(vertex_count);
+    mesh_.vertices.count = vertex_count;
+    mesh_.vertices.window = std::max<uint64_t>(vertex_count, 1);
+    mesh_.vertex_count = vertex_count;
+    std::unique_ptr<BucketSpill> blocks;
+    // Taken before the pass: a sink must never wait for memory that items queued
+    // behind it hold.
+    Lease block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
+    uint64_t vertices_seen = 0;
+
+    auto pass = input_pass();
+    pass.ordered = true;  // every vertex before the first face, as PLY sends them
+    pass.sink = [&](InputItem& item, Lease&) {
+      const auto& batch = item.batch;
+      if (!batch.vertices.empty()) {
+        if (batch.first_vertex + batch.vertices.size() > vertex_count) {
+          throw_bad_input(input_.path.string(), "vertex " + std::to_string(batch.first_vertex),
+                          "more vertices than the header declares");
+        }
+        std::copy(batch.vertices.begin(), batch.vertices.end(), positions.begin() + batch.first_vertex);
+        for (const Point& p : batch.vertices) box_.add(p);
+        vertices_seen += batch.vertices.size();
+      }
+      if (batch.triangles.empty()) return;
+      if (!blocks) {
+        if (vertices_seen != vertex_count) {
+          throw_bad_input(input_.path.string(), "triangle 0", "faces before all vertices");
+        }
+        build_grid(polygon_count);
+        blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", uint32_t(sizeof(BlockFace)),
+                                               std::move(block_lease), mesh_.grid.count(), "load");
+      }
+      BlockFace face;
+      for (size_t i = 0; i < batch.triangles.size(); ++i) {
+        face.id = batch.first_triangle + i;
+        face.vertices = batch.triangles[i];
+        for (int k = 0; k < 3; ++k) {
+          if (face.vertices[k] >= vertex_count) index_out_of_range(input_.path, face.id, face.vertices[k], vertex_count);
+          face.positions[k] = positions[face.vertices[k]];
+        }
+        add_face(*blocks, face);
+      }
+      mesh_.face_count = batch.first_triangle + batch.triangles.size();
+    };
+    run_stream_pass(job_, pass);
+    if (vertices_seen != vertex_count) {
+      throw_bad_input(input_.path.string(), "end of file",
+                      "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");
+    }
+    if (!blocks) {  // no faces at all
+      build_grid(0);
+      blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", uint32_t(sizeof(BlockFace)),
+                                             std::move(block_lease), 1, "load");
+    }
+    collect_blocks(*blocks);
+    mesh_.float_exact = box_.float_exact;
+    // The positions stay resident for whoever writes them next; their lease goes with
+    // the mesh.
+    mesh_.resident_lease = std::move(vertex_lease);
+  }
+
+  void load_out_of_core() {
+    mesh_.out_of_core = true;
+    progress_span_ = 0.4;
+    const uint64_t window = options_.window_vertices
+                                ? options_.window_vertices
+                                : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.3) / sizeof(Point));
+    mesh_.vertices.window = window;
+    const auto& info = input_.reader->info();
+    uint32_t expected_windows =
+        info.vertex_count ? uint32_t(std::max<uint64_t>((*info.vertex_count + window - 1) / window, 1)) : 16;
+
+    // Pass 1: vertices to windows in scratch, face corners bucketed by window.
+    BucketSpill corners(job_, scratch_, "corners", sizeof(CornerRef),
+                        spill_lease("corner bucketer", 0.3, sizeof(CornerRef)), expected_windows, "load");
+    VertexFrameWriter vertex_writer(job_, scratch_, mesh_.vertices);
+    uint64_t vertex_count = 0, face_count = 0, max_index = 0;
+    auto pass = input_pass();
+    pass.transform = [&](InputItem& item, Lease&) {
+      const auto& batch = item.batch;
+      for (const Point& p : batch.vertices) item.box.add(p);
+      uint64_t done = 0;
+      while (done < batch.vertices.size()) {  // one frame per window the batch touches
+        uint64_t first = batch.first_vertex + done;
+        uint64_t w = first / window;
+        uint64_t n = std::min<uint64_t>(batch.vertices.size() - done, (w + 1) * window - first);
+        item.vertex_frames.emplace_back(w, encode_frame(first, sizeof(Point), batch.vertices.data() + done, n));
+        done += n;
+      }
+    };
+    pass.sink = [&](InputItem& item, Lease& lease) {
+      const auto& batch = item.batch;
+      box_.add(item.box);
+      for (auto& [w, frame] : item.vertex_frames) {
+        uint64_t first = 0, count = 0;
+        std::memcpy(&first, frame.data() + 12, 8);  // the frame header's tag and count
+        std::memcpy(&count, frame.data() + 20, 8);
+        Lease frame_lease = lease.split(frame.capacity());
+        vertex_writer.write(w, std::move(frame), count, first, std::move(frame_lease));
+      }
+      vertex_count = std::max<uint64_t>(vertex_count, batch.first_vertex + batch.vertices.size());
+      for (size_t i = 0; i < batch.triangles.size(); ++i) {
+        uint64_t face = batch.first_triangle + i;
+        for (int k = 0; k < 3; ++k) {
+          uint64_t v = batch.triangles[i][k];
+          max_index = std::max(max_index, v);
+          if (info.vertex_count && v >= *info.vertex_count) index_out_of_range(input_.path, face, v, *info.vertex_count);
+          CornerRef ref{face * 3 + uint64_t(k), v};
+          corners.add(uint32_t(v / window), &ref);
+        }
+      }
+      if (!batch.triangles.empty()) face_count = std::max<uint64_t>(face_count, batch.first_triangle + batch.triangles.size());
+    };
+    run_stream_pass(job_, pass);
+    vertex_writer.finish();
+    corners.finish();
+    if (face_count && max_index >= vertex_count) index_out_of_range(input_.path, 0, max_index, vertex_count);
+    mesh_.vertex_count = mesh_.vertices.count = vertex_count;
+    mesh_.face_count = face_count;
+    mesh_.float_exact = box_.float_exact;
+    mesh_.vertices.windows.resize(std::max<uint64_t>((vertex_count + window - 1) / window, 1));
+    input_.reader.reset();
+
+    // Pass 2: per window, resolve the corners that point into it; regroup by face range.
+    const uint64_t range = options_.range_faces
+                               ? options_.range_faces
+                               : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.3) / (3 * 32));
+    uint64_t range_count = std::max<uint64_t>((face_count + range - 1) / range, 1);
+    BucketSpill resolved(job_, scratch_, "resolved", sizeof(ResolvedCorner),
+                         spill_lease("corner resolver", 0.3, sizeof(ResolvedCorner)), uint32_t(range_count),
+                         "resolve");
+    uint32_t windows = uint32_t(mesh_.vertices.windows.size());
+    for (uint32_t w = 0; w < windows && w < corners.bucket_count(); ++w) {
+      if (corners.frames(w).empty()) continue;
+      uint64_t first = uint64_t(w) * window;
+      uint64_t n = std::min<uint64_t>(window, vertex_count - first);
+      Lease window_lease = job_.governor().acquire(job_.owner("vertex window"), n * sizeof(Point), n * sizeof(Point));
+      std::vector<Point> positions(n);
+      load_vertex_window(job_, scratch_, mesh_.vertices, w, positions.data());
+      for_each_frame(
+          job_, scratch_, "resolve", "corner frames", corners.frames(w), sizeof(CornerRef),
+          [&](const FrameHeader& header, Bytes& records, Lease&) {
+            // Resolve in place: each CornerRef becomes a ResolvedCorner in a new buffer.
+            const auto* refs = reinterpret_cast<const CornerRef*>(records.data());
+            Bytes out(header.count * sizeof(ResolvedCorner));
+            auto* res = reinterpret_cast<ResolvedCorner*>(out.data());
+            for (uint64_t i = 0; i < header.count; ++i) {
+              res[i] = {refs[i].corner, refs[i].vertex, positions[refs[i].vertex - first]};
+            }
+            records.swap(out);
+          },
+          [&](const FrameHeader& header, Bytes& records, Lease&) {
+            const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
+            for (uint64_t i = 0; i < header.count; ++i) resolved.add(uint32_t(res[i].corner / 3 / range), &res[i]);
+          },
+          sizeof(ResolvedCorner));
+      job_.progress(0.4 + 0.2 * double(w + 1) / windows, "resolve");
+    }
+    resolved.finish();
+    for (uint32_t w = 0; w < corners.bucket_count(); ++w) {
+      if (!corners.frames(w).empty()) job_.io().call("scratch remove", [&] { scratch_.remove(corners.frames(w)[0].file); });
+    }
+    trim_allocator();
+
+    // Pass 3: per face range, rebuild whole faces and sort them into blocks.
+    box_valid_check();
+    build_grid(face_count);
+    BucketSpill blocks(job_, scratch_, "blocks", sizeof(BlockFace),
+                       spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "assemble");
+    for (uint32_t r = 0; r < range_count; ++r) {
+      uint64_t first_face = uint64_t(r) * range;
+      uint64_t n = std::min<uint64_t>(range, face_count - first_face);
+      if (n == 0) break;
+      if (resolved.records(r) != 3 * n) {
+        throw Error(ErrorKind::internal, "face range " + std::to_string(r) + ": " +
+                                             std::to_string(resolved.records(r)) + " corners for " +
+                                             std::to_string(n) + " faces");
+      }
+      Lease range_lease = job_.governor().acquire(job_.owner("face range"), n * 3 * 32, n * 3 * 32);
+      std::vector<uint64_t> vertex_of(3 * n);
+      std::vector<Point> position_of(3 * n);
+      for_each_frame(job_, scratch_, "assemble", "resolved frames", resolved.frames(r), sizeof(ResolvedCorner),
+                     [&](const FrameHeader& header, Bytes& records, Lease&) {
+                       const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
+                       for (uint64_t i = 0; i < header.count; ++i) {
+                         uint64_t slot = res[i].corner - first_face * 3;
+                         vertex_of[slot] = res[i].vertex;
+                         position_of[slot] = res[i].position;
+                       }
+                     },
+                     {}, 0);
+      Span span(&job_.trace(), &job_.activity(), "assemble faces");
+      BlockFace face;
+      for (uint64_t i = 0; i < n; ++i) {
+        face.id = first_face + i;
+        for (int k = 0; k < 3; ++k) {
+          face.vertices[k] = vertex_of[3 * i + k];
+          face.positions[k] = position_of[3 * i + k];
+        }
+        add_face(blocks, face);
+      }
+      job_.check();
+      job_.progress(0.6 + 0.2 * double(r + 1) / range_count, "assemble");
+    }
+    collect_blocks(blocks);
+    for (uint32_t r = 0; r < resolved.bucket_count(); ++r) {
+      if (!resolved.frames(r).empty()) job_.io().call("scratch remove", [&] { scratch_.remove(resolved.frames(r)[0].file); });
+    }
+  }
+
+  void box_valid_check() {
+    if (mesh_.vertex_count == 0) box_.min = box_.max = Point{0, 0, 0};
+  }
+
+  Job& job_;
+  ScratchStore& scratch_;
+  LoadOptions options_;
+  InputStream input_;
+  uint64_t capacity_ = 0;
+  double progress_span_ = 0.4;
+  Box box_;
+  LoadedMesh mesh_;
+};
+
+}  // namespace
+
+uint32_t BlockGrid::cell_of(const Point& p) const {
+  uint32_t idx[3];
+  for (int i = 0; i < 3; ++i) {
+    double extent = max[i] - min[i];
+    double t = extent > 0 ? (p[i] - min[i]) / extent : 0.0;
+    int64_t c = int64_t(std::floor(t * dims[i]));
+    idx[i] = uint32_t(std::clamp<int64_t>(c, 0, int64_t(dims[i]) - 1));
+  }
+  return (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0];
+}
+
+BlockGrid BlockGrid::around(const Point& min, const Point& max, uint32_t blocks) {
+  BlockGrid grid;
+  grid.min = min;
+  grid.max = max;
+  double e[3], largest = 0;
+  for (int i = 0; i < 3; ++i) {
+    e[i] = std::max(max[i] - min[i], 0.0);
+    largest = std::max(largest, e[i]);
+  }
+  if (largest <= 0 || blocks <= 1) return grid;
+  for (double& x : e) x = std::max(x, largest * 1e-3);
+  double cell = std::cbrt(e[0] * e[1] * e[2] / blocks);
+  for (int i = 0; i < 3; ++i) {
+    grid.dims[i] = uint32_t(std::clamp<double>(std::round(e[i] / cell), 1, 256));
+  }
+  return grid;
+}
+
+void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
+                    const std::vector<FrameRef>& frames, uint32_t record_size, const FrameUse& transform,
+                    const FrameUse& sink, uint32_t out_record_size) {
+  struct FrameItem {
+    FrameRef ref;
+    Bytes encoded, records;
+    FrameHeader header;
+  };
+  size_t next = 0;
+  StreamPass<FrameItem> pass;
+  pass.stage = stage;
+  pass.read_name = "read scratch";
+  pass.transform_name = "decode";
+  pass.owner = owner;
+  pass.next_item_bytes = [&] {
+    if (next == frames.size()) return uint64_t(1);
+    const FrameRef& ref = frames[next];
+    return ref.bytes + ref.count * (record_size + out_record_size);
+  };
+  pass.read = [&](FrameItem& item, Lease&) {
+    if (next == frames.size()) return false;
+    item.ref = frames[next++];
+    item.encoded.resize(item.ref.bytes);
+    scratch.read(item.ref.file, item.ref.offset, item.encoded.data(), item.encoded.size());
+    job.stage(stage).bytes_read += item.ref.bytes;
+    return true;
+  };
+  pass.transform = [&](FrameItem& item, Lease& lease) {
+    item.header = decode_frame(item.encoded.data(), item.encoded.size(), record_size, item.records,
+                               "frame " + std::to_string(item.ref.file) + "@" + std::to_string(item.ref.offset));
+    item.encoded = Bytes();
+    if (transform) transform(item.header, item.records, lease);
+  };
+  if (sink) {
+    pass.sink = [&](FrameItem& item, Lease& lease) { sink(item.header, item.records, lease); };
+  }
+  run_stream_pass(job, pass);
+}
+
+void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& store, uint64_t window,
+                        Point* out) {
+  uint64_t first = window * store.window;
+  if (store.is_resident()) {
+    uint64_t n = std::min<uint64_t>(store.window, store.count - first);
+    std::copy(store.resident.begin() + first, store.resident.begin() + first + n, out);
+    return;
+  }
+  for_each_frame(job, scratch, "vertices", "vertex frames", store.windows.at(window), sizeof(Point),
+                 [&](const FrameHeader& header, Bytes& records, Lease&) {
+                   if (header.tag < first || header.tag + header.count > first + store.window) {
+                     throw Error(ErrorKind::internal, "vertex frame outside its window");
+                   }
+                   std::memcpy(out + (header.tag - first), records.data(), records.size());
+                 },
+                 {}, 0);
+}
+
+LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
+                            const LoadOptions& options) {
+  return Loader(job, scratch, input, options).run();
+}
+
+}  // namespace qemflow::engine

@@ -1,0 +1,175 @@
+#include "engine/reencode.hpp"
+
+#include <cstring>
+
+#include "engine/process_memory.hpp"
+#include "engine/report.hpp"
+#include "engine/scratch.hpp"
+#include "io/mesh_stream.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+namespace {
+
+constexpr uint64_t vertices_per_write = 1 << 16;
+
+// Writes every vertex, in index order, through the I/O thread.
+void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io::MeshWriter& writer) {
+  StageStats& stage = job.stage("write");
+  const VertexStore& store = mesh.vertices;
+  if (store.is_resident()) {
+    for (uint64_t first = 0; first < store.count; first += vertices_per_write) {
+      uint64_t n = std::min(vertices_per_write, store.count - first);
+      const Point* points = store.resident.data() + first;
+      job.io().submit("write vertices", [&writer, points, n] { writer.write_vertices(points, n); },
+                      job.error_handler(), n * sizeof(Point));
+    }
+    job.io().drain();
+    job.check();
+    return;
+  }
+  for (uint64_t w = 0; w < store.windows.size(); ++w) {
+    uint64_t first = w * store.window;
+    if (first >= store.count) break;
+    uint64_t n = std::min(store.window, store.count - first);
+    Lease lease = job.governor().acquire(job.owner("vertex window"), n * sizeof(Point), n * sizeof(Point));
+    std::vector<Point> positions(n);
+    load_vertex_window(job, scratch, store, w, positions.data());
+    job.io().call("write vertices", [&] { writer.write_vertices(positions.data(), n); });
+    job.check();
+    job.progress(0.8 + 0.1 * double(w + 1) / double(store.windows.size()), "write");
+  }
+  (void)stage;
+}
+
+// Reads every block and writes its triangles through the I/O thread.
+uint64_t write_triangles(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io::MeshWriter& writer) {
+  std::vector<FrameRef> frames;
+  for (const auto& block : mesh.blocks) frames.insert(frames.end(), block.begin(), block.end());
+  uint64_t written = 0;
+  size_t done = 0;
+  for_each_frame(
+      job, scratch, "write", "block frames", frames, sizeof(BlockFace),
+      [](const FrameHeader& header, Bytes& records, Lease&) {
+        // Triangles packed in place at the front of the decoded faces.
+        auto* out = reinterpret_cast<Triangle*>(records.data());
+        for (uint64_t i = 0; i < header.count; ++i) {
+          BlockFace face;
+          std::memcpy(&face, records.data() + i * sizeof(BlockFace), sizeof face);
+          out[i] = face.vertices;
+        }
+      },
+      [&](const FrameHeader& header, Bytes& records, Lease& lease) {
+        auto held = std::make_shared<std::pair<Bytes, Lease>>(std::move(records), lease.split(lease.bytes()));
+        uint64_t n = header.count;
+        job.io().submit(
+            "write triangles",
+            [&writer, held, n] {
+              writer.write_triangles(reinterpret_cast<const Triangle*>(held->first.data()), n);
+              held->first = Bytes();
+              held->second.release();
+            },
+            job.error_handler(), n * sizeof(Triangle));
+        written += n;
+        job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
+      },
+      0);
+  job.io().drain();
+  job.check();
+  return written;
+}
+
+}  // namespace
+
+uint64_t expected_scratch_bytes(uint64_t input_file_bytes) { return 4 * input_file_bytes; }
+
+ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, const JobHooks& hooks) {
+  JobSettings settings;
+  settings.threads = options.threads;
+  settings.trace_events = options.trace_path.empty() ? 0 : options.trace_events;
+  Job job(governor, hooks, settings);
+  ReencodeResult result;
+  auto write_trace = [&] {
+    if (!options.trace_path.empty()) job.trace().write(options.trace_path);
+  };
+  try {
+    std::error_code ec;
+    uint64_t input_bytes = std::filesystem::file_size(options.input, ec);
+    if (ec) throw Error(ErrorKind::bad_input, options.input.string() + ": cannot read: " + ec.message());
+    ScratchStore scratch(options.scratch_dir, expected_scratch_bytes(input_bytes));
+    // Declared after the store, so destroyed first: no queued scratch write may
+    // outlive the store, whatever threw.
+    struct DrainIo {
+      Job& job;
+      ~DrainIo() { job.io().drain(); }
+    } drain_before_scratch_goes{job};
+    LoadedMesh mesh = load_into_blocks(job, scratch, options.input, options.load);
+
+    io::WriteOptions write_options;
+    // OBJ text is read back as double, so only the shortest double text keeps the bits.
+    std::string name = options.output.filename().string();
+    bool obj = name.ends_with(".obj") || name.ends_with(".obj.zst");
+    write_options.double_precision = !mesh.float_exact || obj;
+    std::unique_ptr<io::MeshWriter> writer = job.io().call("open output", [&] {
+      return io::open_mesh_writer(options.output, mesh.vertex_count, mesh.face_count, write_options);
+    });
+    // The writer lives and dies on the I/O thread: its destructor removes a
+    // half-written temporary file when something failed.
+    struct WriterOnIo {
+      Job& job;
+      std::unique_ptr<io::MeshWriter>& writer;
+      ~WriterOnIo() {
+        job.io().drain();
+        try {
+          job.io().call("close output", [&] { writer.reset(); });
+        } catch (...) {
+        }
+      }
+    } writer_guard{job, writer};
+    auto started = Clock::now();
+    write_vertices(job, scratch, mesh, *writer);
+    mesh.vertices.resident = {};
+    mesh.resident_lease.release();
+    uint64_t faces = write_triangles(job, scratch, mesh, *writer);
+    if (faces != mesh.face_count) {
+      throw Error(ErrorKind::internal, "re-encode wrote " + std::to_string(faces) + " of " +
+                                           std::to_string(mesh.face_count) + " triangles");
+    }
+    job.io().call("commit output", [&] { writer->commit(); });
+    job.stage("write").bytes_written = writer->bytes_written();
+    job.stage("write").seconds += std::chrono::duration<double>(Clock::now() - started).count();
+    job.progress(1.0, "done");
+
+    result.vertices = mesh.vertex_count;
+    result.faces = faces;
+    result.report = job_report(job, governor);
+    result.report["input"] = options.input.string();
+    result.report["output"] = options.output.string();
+    result.report["input_vertices"] = mesh.vertex_count;
+    result.report["output_vertices"] = mesh.vertex_count;
+    result.report["input_faces"] = mesh.face_count;
+    result.report["output_faces"] = faces;
+    result.report["patches"] = 0;
+    result.report["rounds"] = 0;
+    result.report["blocks"] = mesh.grid.count();
+    result.report["out_of_core_dereference"] = mesh.out_of_core;
+    result.report["scratch_bytes_written"] = scratch.bytes_written();
+    result.report["scratch_bytes_read"] = scratch.bytes_read();
+    result.report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
+    result.report["input_bytes"] = input_bytes;
+    result.report["output_bytes"] = writer->bytes_written();
+    result.summary = format_summary(result.report);
+  } catch (...) {
+    try {
+      write_trace();
+    } catch (...) {
+    }
+    throw;
+  }
+  write_trace();
+  if (!options.report_path.empty()) write_json(options.report_path, result.report);
+  return result;
+}
+
+}  // namespace qemflow::engine

@@ -1,0 +1,54 @@
+#pragma once
+// The first real pipeline on the engine: re-encode a mesh through blocks.
+//
+//   input ──loader (I/O thread reads, compute resolves)──► block chunks (scratch)
+//   vertices (resident or scratch windows) ──► output writer (I/O thread)
+//   block chunks ──block reader (I/O) ──decode (compute)──► output writer (I/O)
+//
+// The output holds the same vertices (same order, same positions to the bit; written
+// as float when every input coordinate is a float, else as double) and the same
+// triangles (same vertex indices), with faces in block order rather than input order.
+// This is `qemflow simplify IN OUT --ratio 1`.
+//
+// Guarantees: peak resident memory stays under the governor's budget (every big
+// buffer is leased; the process baseline is reserved by whoever made the governor);
+// the scratch directory is gone and no output file exists after any failure or
+// cancel; errors are qemflow::Error (bad_input for the input, resource for budget,
+// disk and scratch, cancelled).
+#include <cstdint>
+#include <filesystem>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "engine/blocks.hpp"
+#include "engine/governor.hpp"
+#include "engine/job.hpp"
+
+namespace qemflow::engine {
+
+struct ReencodeOptions {
+  std::filesystem::path input;
+  std::filesystem::path output;
+  std::filesystem::path scratch_dir;  // empty: the system temp dir
+  std::filesystem::path trace_path;   // empty: no trace
+  std::filesystem::path report_path;  // empty: no report file
+  int threads = 0;                    // 0: all cores
+  size_t trace_events = 1 << 18;      // cap of the trace buffer when tracing
+  LoadOptions load;
+};
+
+struct ReencodeResult {
+  uint64_t vertices = 0;
+  uint64_t faces = 0;
+  nlohmann::json report;  // what --report writes
+  std::string summary;    // format_summary(report)
+};
+
+ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, const JobHooks& hooks);
+
+// Scratch space to ask for up front, from the input's size on disk: blocks, corners
+// and resolved corners, compressed, measured at under this many times the input.
+uint64_t expected_scratch_bytes(uint64_t input_file_bytes);
+
+}  // namespace qemflow::engine

@@ -1,0 +1,71 @@
+#include "engine/report.hpp"
+
+#include <cstdio>
+#include <fstream>
+
+#include "config/size.hpp"
+#include "engine/process_memory.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+
+nlohmann::json job_report(Job& job, const Governor& governor) {
+  auto activity = job.activity().totals();
+  nlohmann::json report;
+  report["wall_seconds"] = activity.wall_seconds;
+  report["peak_rss_bytes"] = peak_resident_bytes();
+  report["budget_bytes"] = governor.budget();
+  report["baseline_bytes"] = governor.baseline();
+  report["governor_peak_bytes"] = governor.peak_in_use();
+  report["threads"] = job.threads();
+  report["io_busy_seconds"] = activity.io_busy_seconds;
+  report["compute_busy_seconds"] = activity.compute_busy_seconds;
+  report["compute_thread_seconds"] = activity.compute_thread_seconds;
+  report["overlap_seconds"] = activity.overlap_seconds;
+  nlohmann::json stages = nlohmann::json::array();
+  for (const StageStats* s : job.stages()) {
+    stages.push_back({{"name", s->name},
+                      {"seconds", s->seconds},
+                      {"bytes_read", s->bytes_read.load()},
+                      {"bytes_written", s->bytes_written.load()},
+                      {"items", s->items.load()}});
+  }
+  report["stages"] = stages;
+  nlohmann::json nodes = nlohmann::json::array();
+  for (const OwnerStats& o : governor.owners()) {
+    nodes.push_back({{"name", o.owner},
+                     {"peak_bytes", o.peak},
+                     {"granted_bytes", o.granted_total},
+                     {"grants", o.grants},
+                     {"partial_grants", o.partial_grants},
+                     {"denials", o.denials}});
+  }
+  report["nodes"] = nodes;
+  report["trace_dropped_events"] = job.trace().dropped();
+  return report;
+}
+
+std::string format_summary(const nlohmann::json& r) {
+  double wall = r.value("wall_seconds", 0.0);
+  auto pct = [&](double seconds) { return wall > 0 ? 100.0 * seconds / wall : 0.0; };
+  double io = r.value("io_busy_seconds", 0.0);
+  double overlap = r.value("overlap_seconds", 0.0);
+  char line[512];
+  std::snprintf(line, sizeof line,
+                "wall %.2f s | peak RSS %s of %s budget | I/O busy %.0f%% | compute busy %.0f%% "
+                "(%.0f%% of %d threads) | overlap %.0f%% of I/O time",
+                wall, config::format_size(r.value("peak_rss_bytes", uint64_t(0))).c_str(),
+                config::format_size(r.value("budget_bytes", uint64_t(0))).c_str(), pct(io),
+                pct(r.value("compute_busy_seconds", 0.0)),
+                pct(r.value("compute_thread_seconds", 0.0)) / std::max(1, r.value("threads", 1)),
+                r.value("threads", 1), io > 0 ? 100.0 * overlap / io : 0.0);
+  return line;
+}
+
+void write_json(const std::filesystem::path& path, const nlohmann::json& json) {
+  std::ofstream out(path);
+  out << json.dump(2) << "\n";
+  if (!out) throw Error(ErrorKind::resource, path.string() + ": cannot write the report");
+}
+
+}  // namespace qemflow::engine

@@ -1,0 +1,23 @@
+#pragma once
+// The run report (--report FILE.json, DESIGN §5) and the short end-of-run summary.
+// job_report() fills what the engine knows (wall time, peak RSS against the budget,
+// per-stage time and bytes, per-node memory from the governor, busy and overlap
+// times); the pipeline adds its own fields (input/output faces, patches, rounds).
+#include <filesystem>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "engine/governor.hpp"
+#include "engine/job.hpp"
+
+namespace qemflow::engine {
+
+nlohmann::json job_report(Job& job, const Governor& governor);
+// One paragraph for stderr: wall time, peak RSS / budget, I/O and compute busy,
+// overlap; from a report made by job_report().
+std::string format_summary(const nlohmann::json& report);
+// Plain file write (the report is not pipeline data); Error(resource) on failure.
+void write_json(const std::filesystem::path& path, const nlohmann::json& json);
+
+}  // namespace qemflow::engine

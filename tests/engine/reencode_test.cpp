@@ -1,0 +1,257 @@
+// The re-encode pipeline end to end: same vertices and triangles out as in, in both
+// dereference modes, with chunk boundaries hit constantly; blocks hold the right
+// positions; cancel and write errors leave nothing behind; the trace and the report
+// hold what they promise.
+#include "engine/reencode.hpp"
+
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "engine/blocks.hpp"
+#include "engine/scratch.hpp"
+#include "gen/generator.hpp"
+#include "io/indexed_mesh.hpp"
+#include "test_support.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::engine {
+namespace {
+
+using qemflow::testing::TempDir;
+
+std::filesystem::path make_mesh(const TempDir& dir, uint64_t faces, const std::string& name = "in.ply") {
+  gen::GenOptions options;
+  options.faces = faces;
+  options.shape = "blob";
+  auto path = dir / name;
+  gen::generate_to_file(options, path);
+  return path;
+}
+
+// Triangles as sorted (canonical) lists of vertex index triples.
+std::vector<Triangle> sorted(std::vector<Triangle> triangles) {
+  std::sort(triangles.begin(), triangles.end());
+  return triangles;
+}
+
+bool directory_empty(const std::filesystem::path& dir) {
+  return std::filesystem::is_empty(dir);
+}
+
+void expect_same_mesh(const std::filesystem::path& in, const std::filesystem::path& out) {
+  io::IndexedMesh a = io::read_mesh(in), b = io::read_mesh(out);
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  EXPECT_TRUE(a.vertices == b.vertices);  // same order, same bits
+  ASSERT_EQ(a.triangles.size(), b.triangles.size());
+  EXPECT_TRUE(sorted(a.triangles) == sorted(b.triangles));
+}
+
+TEST(Reencode, ResidentVerticesGiveTheSameMesh) {
+  TempDir dir;
+  auto in = make_mesh(dir, 20'000);
+  Governor governor(256ull << 20, 0);
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = dir.path()};
+  options.load.faces_per_block = 1'000;  // ~20 blocks
+  auto result = run_reencode(governor, options, {});
+  EXPECT_FALSE(result.report["out_of_core_dereference"].get<bool>());
+  EXPECT_EQ(result.faces, 20'000u);
+  expect_same_mesh(in, dir / "out.ply");
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 2);  // in, out: scratch gone
+}
+
+TEST(Reencode, OutOfCoreDereferenceWithTinyWindowsGivesTheSameMesh) {
+  TempDir dir;
+  auto in = make_mesh(dir, 30'000, "in.ply.zst");
+  Governor governor(64ull << 20, 0);
+  ReencodeOptions options{.input = in, .output = dir / "out.obj", .scratch_dir = dir.path()};
+  options.load = {.faces_per_block = 2'000, .window_vertices = 997, .range_faces = 1'231, .force_out_of_core = true};
+  auto result = run_reencode(governor, options, {.progress = {}, .cancel = {}});
+  EXPECT_TRUE(result.report["out_of_core_dereference"].get<bool>());
+  expect_same_mesh(in, dir / "out.obj");
+}
+
+TEST(Reencode, BlocksHoldEveryFaceOnceWithItsPositionsInItsCell) {
+  TempDir dir;
+  auto in = make_mesh(dir, 10'000);
+  io::IndexedMesh mesh = io::read_mesh(in);
+  for (bool out_of_core : {false, true}) {
+    Governor governor(64ull << 20, 0);
+    Job job(governor, {}, {.threads = 2});
+    ScratchStore scratch(dir.path(), 0);
+    LoadOptions load{.faces_per_block = 500, .window_vertices = out_of_core ? 613u : 0u,
+                     .range_faces = out_of_core ? 777u : 0u, .force_out_of_core = out_of_core};
+    LoadedMesh loaded = load_into_blocks(job, scratch, in, load);
+    EXPECT_EQ(loaded.face_count, mesh.triangles.size());
+    EXPECT_GT(loaded.grid.count(), 8u);
+    std::vector<int> seen(mesh.triangles.size(), 0);
+    for (uint32_t cell = 0; cell < loaded.grid.count(); ++cell) {
+      uint64_t faces_in_cell = 0;
+      for_each_frame(job, scratch, "check", "check", loaded.blocks[cell], sizeof(BlockFace),
+                     {}, [&](const FrameHeader& header, Bytes& records, Lease&) {
+                       for (uint64_t i = 0; i < header.count; ++i) {
+                         BlockFace face;
+                         std::memcpy(&face, records.data() + i * sizeof face, sizeof face);
+                         ASSERT_LT(face.id, mesh.triangles.size());
+                         ++seen[face.id];
+                         EXPECT_EQ(face.vertices, mesh.triangles[face.id]);
+                         for (int k = 0; k < 3; ++k) EXPECT_EQ(face.positions[k], mesh.vertices[face.vertices[k]]);
+                         Point c{};
+                         for (int a = 0; a < 3; ++a) c[a] = (face.positions[0][a] + face.positions[1][a] + face.positions[2][a]) / 3;
+                         EXPECT_EQ(loaded.grid.cell_of(c), cell);
+                         ++faces_in_cell;
+                       }
+                     }, 0);
+      EXPECT_EQ(faces_in_cell, loaded.block_faces[cell]);
+    }
+    EXPECT_TRUE(std::all_of(seen.begin(), seen.end(), [](int n) { return n == 1; }));
+  }
+}
+
+TEST(Reencode, CancelMidRunLeavesNoScratchAndNoOutput) {
+  TempDir dir, scratch_dir;
+  auto in = make_mesh(dir, 100'000);
+  Governor governor(32ull << 20, 0);
+  auto cancel = std::make_shared<CancelToken>();
+  bool fired = false;
+  JobHooks hooks;
+  hooks.cancel = cancel;
+  hooks.progress = [&](double fraction, const std::string&) {
+    if (fraction > 0.3 && !fired) {
+      fired = true;
+      cancel->cancel();
+    }
+  };
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = scratch_dir.path()};
+  options.load = {.faces_per_block = 5'000, .window_vertices = 4'000, .range_faces = 5'000, .force_out_of_core = true};
+  try {
+    run_reencode(governor, options, hooks);
+    FAIL() << "not cancelled";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::cancelled) << e.what();
+  }
+  EXPECT_TRUE(fired);
+  EXPECT_TRUE(directory_empty(scratch_dir.path()));
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 1);  // only the input
+  EXPECT_EQ(governor.in_use(), 0u);
+}
+
+// A write error injected with a file-size limit (EFBIG), which works even as root.
+TEST(Reencode, ScratchWriteErrorEndsCleanlyWithNothingLeftBehind) {
+  TempDir dir, scratch_dir;
+  auto in = make_mesh(dir, 100'000);
+  Governor governor(64ull << 20, 0);
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = scratch_dir.path()};
+  options.load = {.faces_per_block = 5'000, .window_vertices = 4'000, .range_faces = 5'000, .force_out_of_core = true};
+  rlimit old{};
+  getrlimit(RLIMIT_FSIZE, &old);
+  auto old_handler = signal(SIGXFSZ, SIG_IGN);
+  rlimit small = old;
+  small.rlim_cur = 40'000;
+  setrlimit(RLIMIT_FSIZE, &small);
+  std::string message;
+  ErrorKind kind = ErrorKind::internal;
+  try {
+    run_reencode(governor, options, {});
+  } catch (const Error& e) {
+    message = e.what();
+    kind = e.kind();
+  }
+  setrlimit(RLIMIT_FSIZE, &old);
+  signal(SIGXFSZ, old_handler);
+  EXPECT_EQ(kind, ErrorKind::resource) << message;
+  EXPECT_NE(message.find("write failed"), std::string::npos) << message;
+  EXPECT_NE(message.find(scratch_dir.path().string()), std::string::npos) << message;
+  EXPECT_TRUE(directory_empty(scratch_dir.path()));
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 1);
+}
+
+TEST(Reencode, MissingScratchDirectoryIsARefusedUpFront) {
+  TempDir dir;
+  auto in = make_mesh(dir, 1'000);
+  Governor governor(64ull << 20, 0);
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = dir / "nope"};
+  try {
+    run_reencode(governor, options, {});
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::resource);
+  }
+  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
+}
+
+TEST(Reencode, BudgetBelowTheLoadersMinimumIsRefusedNamingIt) {
+  TempDir dir;
+  auto in = make_mesh(dir, 1'000);
+  Governor governor(2ull << 20, 0);
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = dir.path()};
+  try {
+    run_reencode(governor, options, {});
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::resource);
+    EXPECT_NE(std::string(e.what()).find("minimum budget"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
+}
+
+TEST(Reencode, TraceParsesAndHoldsTheIoThreadsSpansAndCounters) {
+  TempDir dir;
+  auto in = make_mesh(dir, 20'000);
+  Governor governor(64ull << 20, 0);
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = dir.path(),
+                          .trace_path = dir / "trace.json", .report_path = dir / "report.json"};
+  options.load = {.faces_per_block = 2'000, .window_vertices = 2'000, .range_faces = 3'000, .force_out_of_core = true};
+  run_reencode(governor, options, {});
+  std::ifstream trace_file(dir / "trace.json");
+  auto trace = nlohmann::json::parse(trace_file);
+  int io_tid = -1;
+  std::set<std::string> io_spans, counters, threads;
+  for (const auto& e : trace["traceEvents"]) {
+    if (e["ph"] == "M" && e["name"] == "thread_name") {
+      threads.insert(e["args"]["name"].get<std::string>());
+      if (e["args"]["name"] == "io") io_tid = e["tid"];
+    }
+  }
+  ASSERT_GE(io_tid, 0);
+  size_t compute_spans = 0;
+  for (const auto& e : trace["traceEvents"]) {
+    if (e["ph"] == "X") {
+      EXPECT_GE(e["dur"].get<double>(), 0.0);
+      if (e["tid"] == io_tid) io_spans.insert(e["name"].get<std::string>());
+      else ++compute_spans;
+    }
+    if (e["ph"] == "C") counters.insert(e["name"].get<std::string>());
+  }
+  EXPECT_TRUE(io_spans.count("read input"));
+  EXPECT_TRUE(io_spans.count("scratch write"));
+  EXPECT_TRUE(io_spans.count("read scratch"));
+  EXPECT_TRUE(io_spans.count("write triangles"));
+  EXPECT_GT(compute_spans, 0u);
+  EXPECT_TRUE(counters.count("governor bytes in use"));
+  EXPECT_TRUE(counters.count("io bytes in flight"));
+  EXPECT_TRUE(std::any_of(threads.begin(), threads.end(), [](auto& n) { return n.rfind("compute-", 0) == 0; }));
+
+  std::ifstream report_file(dir / "report.json");
+  auto report = nlohmann::json::parse(report_file);
+  for (const char* key : {"input_faces", "output_faces", "wall_seconds", "peak_rss_bytes", "budget_bytes",
+                          "stages", "nodes", "patches", "rounds", "io_busy_seconds", "overlap_seconds"}) {
+    EXPECT_TRUE(report.contains(key)) << key;
+  }
+  EXPECT_EQ(report["output_faces"], 20'000);
+  std::set<std::string> stages;
+  for (const auto& s : report["stages"]) stages.insert(s["name"].get<std::string>());
+  for (const char* s : {"load", "resolve", "assemble", "write"}) EXPECT_TRUE(stages.count(s)) << s;
+  bool block_writer = false;
+  for (const auto& n : report["nodes"]) {
+    if (n["name"] == "block writer") block_writer = n["peak_bytes"].get<uint64_t>() > 0;
+  }
+  EXPECT_TRUE(block_writer);
+}
+
+}  // namespace
+}  // namespace qemflow::engine
