@@ -2,7 +2,7 @@
 """Render a small triangle mesh (ascii OBJ or ascii PLY) to a PNG with flat Lambert
 shading, to eyeball generated shapes and simplification results.
 
-    /usr/bin/python3 bench/render_mesh.py MESH.obj OUT.png [--elev 25] [--azim -60] [--title T]
+    /usr/bin/python3 bench/render_mesh.py MESH.obj OUT.png [--elev 25] [--azim -60] [--title T] [--edges]
 
 Meant for meshes up to ~100k faces (matplotlib sorts every face by depth). Needs
 matplotlib and numpy (Debian: python3-matplotlib).
@@ -61,6 +61,7 @@ def main():
     parser.add_argument("--elev", type=float, default=25)
     parser.add_argument("--azim", type=float, default=-60)
     parser.add_argument("--title", default=None)
+    parser.add_argument("--edges", action="store_true", help="draw triangle edges (small meshes)")
     parser.add_argument("--size", type=float, default=6, help="figure size in inches (100 dpi)")
     args = parser.parse_args()
 
@@ -78,7 +79,8 @@ def main():
 
     fig = plt.figure(figsize=(args.size, args.size), dpi=100)
     ax = fig.add_subplot(projection="3d")
-    ax.add_collection3d(Poly3DCollection(triangles, facecolors=colours, edgecolors="none", linewidths=0))
+    ax.add_collection3d(Poly3DCollection(triangles, facecolors=colours, edgecolors="k" if args.edges else "none",
+                                          linewidths=0.2 if args.edges else 0))
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     centre, half = (lo + hi) / 2, (hi - lo).max() / 2
     for set_lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
