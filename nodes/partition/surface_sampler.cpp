@@ -1,5 +1,8 @@
 #include "nodes/partition/surface_sampler.hpp"
 
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -13,6 +16,10 @@ namespace {
 
 constexpr int kExponentBias = 1100;  // frexp exponents of positive finite doubles: -1073..1024
 constexpr int kBinCount = 2200;
+// Samples per radius² of surface, measured on a sphere, a torus, the bunny and the
+// dragon (0.59-0.60: eight kept candidates per cell fill a little short of the 0.7 of
+// saturated random sequential adsorption).
+constexpr double kSamplesPerRadiusSquared = 0.6;
 
 Vec3 unit_normal(const std::array<Point, 3>& c) {
   const Vec3 n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
@@ -99,7 +106,7 @@ double SurfaceAreaSum::total() const {
 double radius_for_sample_count(double area, uint64_t target_count) {
   if (!(area > 0) || target_count == 0)
     throw Error(ErrorKind::internal, "radius_for_sample_count: empty surface or zero target");
-  return std::sqrt(0.7 * area / static_cast<double>(target_count));
+  return std::sqrt(kSamplesPerRadiusSquared * area / static_cast<double>(target_count));
 }
 
 SurfaceSampler::SurfaceSampler(const SamplerOptions& options)
@@ -207,14 +214,24 @@ SampleSet SurfaceSampler::finish() const {
 
 SampleSet sample_faces(std::span<const PositionedFace> faces, uint64_t target_count, uint64_t seed,
                        uint64_t max_samples) {
+  // Per-thread area sums and samplers merged in whatever order: the result cannot tell.
+  constexpr size_t kChunk = 1 << 14;
+  tbb::enumerable_thread_specific<SurfaceAreaSum> areas;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, faces.size(), kChunk), [&](const auto& range) {
+    areas.local().add_faces(faces.subspan(range.begin(), range.size()));
+  });
   SurfaceAreaSum area;
-  area.add_faces(faces);
+  for (const auto& part : areas) area.merge(part);
   SamplerOptions options;
   options.radius = radius_for_sample_count(area.total(), target_count);
   options.max_samples = max_samples;
   options.seed = seed;
+  tbb::enumerable_thread_specific<SurfaceSampler> samplers(options);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, faces.size(), kChunk), [&](const auto& range) {
+    samplers.local().add_faces(faces.subspan(range.begin(), range.size()));
+  });
   SurfaceSampler sampler(options);
-  sampler.add_faces(faces);
+  for (auto& part : samplers) sampler.merge(std::move(part));
   return sampler.finish();
 }
 

@@ -8,6 +8,7 @@
 #include <numeric>
 
 #include "nodes/partition/counter_hash.hpp"
+#include "nodes/partition/partition_budget.hpp"
 #include "nodes/partition/proximity_graph.hpp"
 #include "nodes/partition/surface_sampler.hpp"
 #include "nodes/partition/test_surfaces.hpp"
@@ -180,6 +181,28 @@ TEST(PartitionGraph, SymmetricSortedAndConnectedOnASphere) {
   const auto component = connected_components(graph);
   EXPECT_EQ(*std::max_element(component.begin(), component.end()), 0u);
   EXPECT_GT(static_cast<double>(edges) / graph.size(), 6.0);  // mean degree
+}
+
+// The budget estimate covers what the sampler really keeps, and its inverse fits.
+TEST(PartitionBudget, EstimateCoversTheSampler) {
+  const auto faces = shapes::positioned_faces(shapes::icosphere(6, 0.15));
+  SurfaceAreaSum area;
+  area.add_faces(faces);
+  SamplerOptions options;
+  options.radius = radius_for_sample_count(area.total(), 4000);
+  SurfaceSampler sampler(options);
+  sampler.add_faces(faces);
+  const size_t samples = sampler.finish().samples.size();
+  EXPECT_GT(samples, 3600u);  // the radius helper hits its target within 10%
+  EXPECT_LT(samples, 4400u);
+  const PartitionFootprint footprint;
+  EXPECT_LE(2 * sampler.kept_candidates() * sizeof(SurfaceSampler::Candidate),
+            samples * footprint.sampling_bytes_per_sample);
+  const uint64_t budget = 256ull << 20;
+  const uint64_t fitting = max_samples_for_budget(budget, 64, 8);
+  EXPECT_LE(partition_peak_bytes(fitting, 64, 8), budget);
+  EXPECT_GT(partition_peak_bytes(fitting + 2000, 64, 8), budget);
+  EXPECT_GT(fitting, 100'000u);
 }
 
 }  // namespace
