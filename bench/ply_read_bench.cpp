@@ -1,5 +1,5 @@
 // Streaming PLY read throughput on one core: binary little-endian (the fast path),
-// big-endian, and .zst. The input, a ~3M-face grid, is generated into /tmp at start
+// big-endian, and .zst; plus the writer (plain and .zst). The input, a ~3M-face grid, is generated into /tmp at start
 // with qemflow's own writer (a big-endian copy is converted by hand) and removed at
 // exit. Bytes/s counts the uncompressed PLY bytes, so the three rows compare.
 #include <benchmark/benchmark.h>
@@ -126,9 +126,22 @@ void BM_ReadPlyLittleEndian(benchmark::State& state) { read_all(state, files().l
 void BM_ReadPlyBigEndian(benchmark::State& state) { read_all(state, files().be); }
 void BM_ReadPlyZstd(benchmark::State& state) { read_all(state, files().zst); }
 
+// Writing the same grid (row generation included; it is a small part).
+void write_bench(benchmark::State& state, const std::string& name) {
+  auto path = files().dir / name;
+  for (auto _ : state) BenchFiles::write_grid(path, false);
+  state.SetBytesProcessed(static_cast<int64_t>(state.iterations() * files().ply_bytes));
+  std::filesystem::remove(path);
+}
+
+void BM_WritePly(benchmark::State& state) { write_bench(state, "out.ply"); }
+void BM_WritePlyZstd(benchmark::State& state) { write_bench(state, "out.ply.zst"); }
+
 BENCHMARK(BM_ReadPlyLittleEndian)->Unit(benchmark::kMillisecond)->MinTime(2.0);
 BENCHMARK(BM_ReadPlyBigEndian)->Unit(benchmark::kMillisecond)->MinTime(2.0);
 BENCHMARK(BM_ReadPlyZstd)->Unit(benchmark::kMillisecond)->MinTime(2.0);
+BENCHMARK(BM_WritePly)->Unit(benchmark::kMillisecond)->MinTime(2.0);
+BENCHMARK(BM_WritePlyZstd)->Unit(benchmark::kMillisecond)->MinTime(2.0);
 
 }  // namespace
 

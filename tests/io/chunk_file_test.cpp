@@ -4,7 +4,7 @@
 
 #include <gtest/gtest.h>
 
-#include <numeric>
+#include <functional>
 #include <random>
 
 #include "io/hash64.hpp"

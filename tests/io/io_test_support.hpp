@@ -3,6 +3,7 @@
 // chosen batch size, check error kind and message.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <fstream>

@@ -4,6 +4,9 @@
 #include <signal.h>
 #include <sys/resource.h>
 
+#include <algorithm>
+#include <functional>
+
 #include "io/mesh_stream.hpp"
 #include "io_test_support.hpp"
 #include "test_support.hpp"
