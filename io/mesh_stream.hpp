@@ -1,8 +1,17 @@
 #pragma once
 // Streaming mesh access. Readers hand out vertices and triangles in bounded batches
-// and never hold a whole file; writers accept them in batches and publish the file
-// only on commit(). Formats: PLY (ascii, binary LE/BE), OBJ, each optionally .zst,
-// chosen by file name.
+// and never hold a whole file (one 4 MiB buffer plus the caller's batch); writers
+// accept them in batches and publish the file only on commit(). Formats: PLY
+// (ascii, binary LE/BE), OBJ, each optionally .zst, chosen by file name
+// (".ply", ".obj", then optionally ".zst", case-insensitive; any other name is
+// Error(usage)). For PLY the header decides ascii/binary.
+//
+// Errors: malformed input is Error(bad_input) with one line "FILE: PLACE: PROBLEM",
+// PLACE being "byte N" (binary PLY; for .zst, N counts decompressed bytes),
+// "line N" (PLY header, ascii PLY, OBJ) or "cannot open". Output that cannot be
+// written is Error(resource) naming the file; writer misuse is Error(internal).
+// Small meshes: io/indexed_mesh.hpp (read_mesh / write_mesh). Scratch chunks:
+// io/chunk_file.hpp.
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -41,9 +50,11 @@ class MeshReader {
  public:
   virtual ~MeshReader() = default;
   virtual const MeshInfo& info() const = 0;
-  // Fills `batch` with up to about `max_elements` vertices plus triangles; returns
-  // false once the stream is exhausted (batch then empty). Throws Error(bad_input)
-  // naming file, byte offset or line, and problem.
+  // Fills `batch` with up to about `max_elements` vertices plus triangles (a
+  // polygon's fan is never split, so a batch may exceed it by a few triangles);
+  // returns false once the stream is exhausted (batch then empty). Every index is
+  // checked (< vertex count, PLY; already defined, OBJ), every coordinate finite.
+  // Throws Error(bad_input) naming file, byte offset or line, and problem.
   virtual bool next(MeshBatch& batch, size_t max_elements = 1 << 16) = 0;
   // Bytes consumed from the (possibly compressed) file so far, for progress.
   virtual uint64_t bytes_read() const = 0;
@@ -58,8 +69,13 @@ struct WriteOptions {
 };
 
 // Counts are declared up front (PLY headers need them). Vertices must all be written
-// before triangles for PLY. Destroying a writer without commit() removes its
-// temporary file, so no half-written output is ever left at `path`.
+// before triangles for PLY; OBJ may interleave, a face naming only vertices already
+// written. Output goes to "PATH.tmp-<pid>-<random>" beside PATH and is renamed into
+// place by commit(), which checks the declared counts (mismatch: Error(internal)).
+// Destroying a writer without commit() removes its temporary file, so no
+// half-written output is ever left at `path` (an existing file there is untouched).
+// PLY output: binary little-endian, float or double xyz, "list uchar int" faces
+// ("uint" above 2^31 vertices).
 class MeshWriter {
  public:
   virtual ~MeshWriter() = default;
