@@ -52,3 +52,19 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
 uint64_t expected_scratch_bytes(uint64_t input_file_bytes);
 
 }  // namespace qemflow::engine
+
+namespace qemflow::engine {
+
+// The whole `simplify --ratio 1` command as the CLI runs it: a Governor for the
+// process (budget from --mem-budget, baseline measured now, allocator tuned), a
+// progress bar on stderr when it is a terminal and not quiet, the run, and the
+// one-line summary on stderr unless quiet. Throws qemflow::Error like run_reencode.
+struct ReencodeCommand {
+  std::filesystem::path input, output, scratch_dir, trace_path, report_path;
+  uint64_t mem_budget = 0;  // 0: half the machine's physical memory
+  int threads = 0;
+  bool quiet = false;
+};
+ReencodeResult run_reencode_command(const ReencodeCommand& command);
+
+}  // namespace qemflow::engine

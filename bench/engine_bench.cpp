@@ -1,0 +1,151 @@
+// Engine micro-benchmarks (governor, frame codec, bucket spill) and two drivers for
+// bench/reencode.sh:
+//   engine_bench reencode IN OUT --mem-budget SIZE [--scratch DIR] [--trace F] [--report F]
+//                [--threads N] [--quiet]        the re-encode pipeline (= simplify --ratio 1)
+//   engine_bench io-baseline IN SCRATCH_DIR BYTES   read IN and write BYTES through the
+//                I/O thread alone: the floor the pipeline's throughput is compared with
+#include <benchmark/benchmark.h>
+
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <numeric>
+#include <string>
+
+#include "config/size.hpp"
+#include "engine/governor.hpp"
+#include "engine/io_thread.hpp"
+#include "engine/reencode.hpp"
+#include "engine/scratch.hpp"
+#include "util/error.hpp"
+
+namespace {
+
+using namespace qemflow;
+using namespace qemflow::engine;
+
+void BM_GovernorLeaseCycle(benchmark::State& state) {
+  Governor governor(1ull << 30, 0);
+  for (auto _ : state) {
+    Lease lease = governor.try_acquire("node", 4096);
+    benchmark::DoNotOptimize(lease.bytes());
+  }
+}
+BENCHMARK(BM_GovernorLeaseCycle);
+
+std::vector<BlockFace> sample_faces(size_t n) {
+  std::vector<BlockFace> faces(n);
+  for (size_t i = 0; i < n; ++i) {
+    faces[i].id = i;
+    faces[i].vertices = {i / 2, i / 2 + 1, i / 2 + 300};
+    for (int k = 0; k < 3; ++k) {
+      faces[i].positions[k] = {double(float(i * 1e-4 + k)), double(float(i * 2e-4)), double(float(k * 0.5))};
+    }
+  }
+  return faces;
+}
+
+void BM_EncodeBlockFrame(benchmark::State& state) {
+  auto faces = sample_faces(size_t(state.range(0)));
+  for (auto _ : state) {
+    Bytes frame = encode_frame(0, sizeof(BlockFace), faces.data(), faces.size());
+    benchmark::DoNotOptimize(frame.data());
+    state.counters["ratio"] = double(faces.size() * sizeof(BlockFace)) / double(frame.size());
+  }
+  state.SetBytesProcessed(int64_t(state.iterations()) * int64_t(faces.size() * sizeof(BlockFace)));
+}
+BENCHMARK(BM_EncodeBlockFrame)->Arg(1 << 14)->Arg(1 << 17);
+
+void BM_DecodeBlockFrame(benchmark::State& state) {
+  auto faces = sample_faces(size_t(state.range(0)));
+  Bytes frame = encode_frame(0, sizeof(BlockFace), faces.data(), faces.size());
+  Bytes out;
+  for (auto _ : state) {
+    out.clear();
+    decode_frame(frame.data(), frame.size(), sizeof(BlockFace), out, "bench");
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.SetBytesProcessed(int64_t(state.iterations()) * int64_t(faces.size() * sizeof(BlockFace)));
+}
+BENCHMARK(BM_DecodeBlockFrame)->Arg(1 << 14)->Arg(1 << 17);
+
+int reencode_main(int argc, char** argv) {
+  ReencodeCommand command;
+  std::vector<std::string> positional;
+  for (int i = 2; i < argc; ++i) {
+    std::string arg = argv[i];
+    auto value = [&] { return i + 1 < argc ? std::string(argv[++i]) : std::string(); };
+    if (arg == "--mem-budget") command.mem_budget = config::parse_size(value());
+    else if (arg == "--scratch") command.scratch_dir = value();
+    else if (arg == "--trace") command.trace_path = value();
+    else if (arg == "--report") command.report_path = value();
+    else if (arg == "--threads") command.threads = std::stoi(value());
+    else if (arg == "--quiet") command.quiet = true;
+    else positional.push_back(arg);
+  }
+  if (positional.size() != 2) {
+    std::fprintf(stderr, "usage: engine_bench reencode IN OUT --mem-budget SIZE [...]\n");
+    return 2;
+  }
+  command.input = positional[0];
+  command.output = positional[1];
+  try {
+    run_reencode_command(command);
+  } catch (const Error& e) {
+    std::fprintf(stderr, "engine_bench: %s\n", e.what());
+    return exit_code(e.kind());
+  }
+  return 0;
+}
+
+// Reads IN in 4 MiB pieces and writes BYTES to a file in SCRATCH_DIR, every piece a
+// task on the I/O thread (no compute at all): the disk-bound floor.
+int io_baseline_main(int argc, char** argv) {
+  if (argc != 5) {
+    std::fprintf(stderr, "usage: engine_bench io-baseline IN SCRATCH_DIR BYTES\n");
+    return 2;
+  }
+  std::string in = argv[2];
+  std::filesystem::path out = std::filesystem::path(argv[3]) / "io-baseline.bin";
+  uint64_t to_write = std::stoull(argv[4]);
+  Trace trace;
+  Activity activity;
+  auto start = Clock::now();
+  uint64_t read_bytes = 0;
+  {
+    IoThread io(&trace, &activity);
+    auto buffer = std::make_shared<std::vector<char>>(4 << 20);
+    io.call("read", [&] {
+      std::ifstream file(in, std::ios::binary);
+      while (file.read(buffer->data(), std::streamsize(buffer->size())) || file.gcount() > 0) {
+        read_bytes += uint64_t(file.gcount());
+      }
+    });
+    io.call("write", [&] {
+      std::ofstream file(out, std::ios::binary);
+      for (uint64_t left = to_write; left > 0;) {
+        uint64_t n = std::min<uint64_t>(left, buffer->size());
+        file.write(buffer->data(), std::streamsize(n));
+        left -= n;
+      }
+      file.flush();
+      if (!file) throw Error(ErrorKind::resource, out.string() + ": write failed");
+    });
+  }
+  double seconds = std::chrono::duration<double>(Clock::now() - start).count();
+  std::filesystem::remove(out);
+  std::printf("{\"read_bytes\": %llu, \"written_bytes\": %llu, \"seconds\": %.3f}\n",
+              static_cast<unsigned long long>(read_bytes), static_cast<unsigned long long>(to_write), seconds);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc > 1 && std::strcmp(argv[1], "reencode") == 0) return reencode_main(argc, argv);
+  if (argc > 1 && std::strcmp(argv[1], "io-baseline") == 0) return io_baseline_main(argc, argv);
+  benchmark::Initialize(&argc, argv);
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}
