@@ -6,17 +6,18 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
-#include <unordered_map>
 
 #include "util/error.hpp"
 
 namespace qemflow::nodes::partition {
 namespace {
 
-// Samples bucketed by grid cell: ids of cell c are ids[range.first .. range.second).
+// Samples bucketed by grid cell: the ids of cell c are ids[ranges[r].first ..
+// ranges[r].second) with r = range_of.find(c).
 struct CellIndex {
   std::vector<uint32_t> ids;
-  std::unordered_map<Cell, std::pair<uint32_t, uint32_t>, CellHash> ranges;
+  std::vector<std::pair<uint32_t, uint32_t>> ranges;
+  CellMap range_of;
 };
 
 CellIndex bucket_by_cell(std::span<const SurfaceSample> samples, double inverse_cell) {
@@ -31,7 +32,8 @@ CellIndex bucket_by_cell(std::span<const SurfaceSample> samples, double inverse_
   for (uint32_t begin = 0; begin < index.ids.size();) {
     uint32_t end = begin + 1;
     while (end < index.ids.size() && cells[index.ids[end]] == cells[index.ids[begin]]) ++end;
-    index.ranges.emplace(cells[index.ids[begin]], std::make_pair(begin, end));
+    index.range_of.insert(cells[index.ids[begin]], static_cast<uint32_t>(index.ranges.size()));
+    index.ranges.emplace_back(begin, end);
     begin = end;
   }
   return index;
@@ -54,9 +56,9 @@ ProximityGraph build_proximity_graph(std::span<const SurfaceSample> samples, dou
     const SurfaceSample& p = samples[i];
     auto& row = rows[i];
     for_each_neighbour_cell(cell_of(p.position, 1.0 / reach), [&](const Cell& cell) {
-      auto found = index.ranges.find(cell);
-      if (found == index.ranges.end()) return;
-      for (uint32_t at = found->second.first; at < found->second.second; ++at) {
+      const uint32_t found = index.range_of.find(cell);
+      if (found == CellMap::absent) return;
+      for (uint32_t at = index.ranges[found].first; at < index.ranges[found].second; ++at) {
         const uint32_t j = index.ids[at];
         if (j == i) continue;
         const SurfaceSample& q = samples[j];

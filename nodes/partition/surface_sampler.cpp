@@ -35,33 +35,68 @@ bool dart_order(const SurfaceSampler::Candidate& a, const SurfaceSampler::Candid
 
 Vec3 widen(const std::array<float, 3>& n) { return {n[0], n[1], n[2]}; }
 
+// The grid cells (edge `radius`) that hold darts, each with the dense ids of its 27
+// neighbours (itself first, −1 where no dart lies): built once, so the sequential
+// dart loop below does no hashing.
+struct DartCells {
+  std::vector<uint32_t> cell_of_dart;
+  std::vector<int32_t> neighbours;  // 27 per cell
+  size_t cell_count = 0;
+};
+
+DartCells index_dart_cells(const std::vector<SurfaceSampler::Candidate>& darts, double radius) {
+  const double inverse_cell = 1.0 / radius;
+  DartCells index;
+  CellMap dense(darts.size() / 4);
+  std::vector<Cell> cells;
+  index.cell_of_dart.resize(darts.size());
+  for (size_t i = 0; i < darts.size(); ++i) {
+    const Cell cell = cell_of(darts[i].position, inverse_cell);
+    const uint32_t id = dense.insert(cell, static_cast<uint32_t>(cells.size()));
+    if (id == cells.size()) cells.push_back(cell);
+    index.cell_of_dart[i] = id;
+  }
+  index.cell_count = cells.size();
+  index.neighbours.reserve(cells.size() * 27);
+  for (const Cell& cell : cells) {
+    index.neighbours.push_back(static_cast<int32_t>(dense.find(cell)));
+    for_each_neighbour_cell(cell, [&](const Cell& near) {
+      if (near == cell) return;
+      const uint32_t found = dense.find(near);
+      index.neighbours.push_back(found == CellMap::absent ? -1 : static_cast<int32_t>(found));
+    });
+  }
+  return index;
+}
+
 // Random sequential adsorption of the candidates (already in dart order) at `radius`:
 // the indices of the accepted candidates.
 std::vector<uint32_t> throw_darts(const std::vector<SurfaceSampler::Candidate>& darts,
                                   double radius, const SheetLimits& sheets) {
-  const double inverse_cell = 1.0 / radius;
-  std::unordered_map<Cell, uint32_t, CellHash> head;  // cell -> last accepted (+1)
+  const DartCells cells = index_dart_cells(darts, radius);
+  const double radius_squared = radius * radius;
+  std::vector<uint32_t> head(cells.cell_count, 0);  // per cell: last accepted (+1)
   std::vector<uint32_t> accepted;
   std::vector<uint32_t> next;  // per accepted: previous accepted in its cell (+1)
-  for (size_t processed = 0; processed < darts.size(); ++processed) {
-    const auto& dart = darts[processed];
-    const Vec3 normal = widen(dart.normal);
+  for (size_t i = 0; i < darts.size(); ++i) {
+    const auto& dart = darts[i];
+    const uint32_t home = cells.cell_of_dart[i];
     bool conflict = false;
-    for_each_neighbour_cell(cell_of(dart.position, inverse_cell), [&](const Cell& cell) {
-      if (conflict) return;
-      auto found = head.find(cell);
-      if (found == head.end()) return;
-      for (uint32_t link = found->second; link != 0 && !conflict; link = next[link - 1]) {
+    for (int n = 0; n < 27 && !conflict; ++n) {
+      const int32_t cell = cells.neighbours[size_t{home} * 27 + n];
+      if (cell < 0) continue;
+      for (uint32_t link = head[cell]; link != 0 && !conflict; link = next[link - 1]) {
         const auto& other = darts[accepted[link - 1]];
-        conflict = approx_geodesic(dart.position, normal, other.position, widen(other.normal),
-                                   sheets) < radius;
+        // The arc is never shorter than the chord: far chords need no asin.
+        if (squared_distance(dart.position, other.position) >= radius_squared) continue;
+        conflict = approx_geodesic(dart.position, widen(dart.normal), other.position,
+                                   widen(other.normal), sheets) < radius;
       }
-    });
+    }
     if (conflict) continue;
-    uint32_t& cell_head = head[cell_of(dart.position, inverse_cell)];
-    accepted.push_back(static_cast<uint32_t>(processed));
-    next.push_back(cell_head);
-    cell_head = static_cast<uint32_t>(accepted.size());
+    accepted.push_back(static_cast<uint32_t>(i));
+    next.push_back(head[home]);
+    head[home] = static_cast<uint32_t>(accepted.size());
   }
   return accepted;
 }
@@ -118,15 +153,13 @@ SurfaceSampler::SurfaceSampler(const SamplerOptions& options)
 
 void SurfaceSampler::offer(const Candidate& candidate) {
   const uint32_t per_cell = options_.candidates_per_cell;
-  auto [slot, inserted] =
-      cell_slot_.try_emplace(cell_of(candidate.position, inverse_cell_size_),
-                             static_cast<uint32_t>(cell_count_.size()));
-  if (inserted) {
+  const uint32_t cell = cell_slot_.insert(cell_of(candidate.position, inverse_cell_size_),
+                                         static_cast<uint32_t>(cell_count_.size()));
+  if (cell == cell_count_.size()) {
     cell_count_.push_back(0);
     candidates_.resize(candidates_.size() + per_cell);
     free_slots_ += per_cell;
   }
-  const uint32_t cell = slot->second;
   Candidate* begin = candidates_.data() + static_cast<size_t>(cell) * per_cell;
   uint32_t& count = cell_count_[cell];
   if (count < per_cell) {

@@ -23,7 +23,6 @@
 #include <array>
 #include <cstdint>
 #include <span>
-#include <unordered_map>
 #include <vector>
 
 #include "nodes/partition/approx_geodesic.hpp"
@@ -101,7 +100,7 @@ class SurfaceSampler {
 
   SamplerOptions options_;
   double inverse_cell_size_;
-  std::unordered_map<Cell, uint32_t, CellHash> cell_slot_;  // cell -> first slot
+  CellMap cell_slot_;                  // cell -> index of its slots
   std::vector<Candidate> candidates_;  // candidates_per_cell slots per occupied cell
   std::vector<uint32_t> cell_count_;   // used slots per occupied cell
   size_t free_slots_ = 0;
