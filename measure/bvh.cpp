@@ -5,6 +5,8 @@
 #include <limits>
 #include <numeric>
 
+#include <tbb/parallel_for.h>
+
 #include "measure/point_triangle.hpp"
 #include "util/error.hpp"
 
@@ -55,32 +57,41 @@ float round_up(double x) {
 
 struct Builder {
   const std::vector<TriangleCorners>& triangles;
+  std::vector<Box> boxes;
   std::vector<Point> centroids;
   std::vector<uint32_t> order;
-  std::vector<TriangleBvh::Node> nodes;
 
-  Box triangle_box(uint32_t t) const {
-    Box b;
-    for (const Point& p : triangles[t]) b.grow(p);
-    return b;
+  struct Range {
+    uint32_t node, begin, end;
+    int depth;
+    Box box, centroid_box;  // of the range's triangles and of their centroids
+  };
+
+  Range make_range(uint32_t node, uint32_t begin, uint32_t end, int depth) const {
+    Range r{node, begin, end, depth, {}, {}};
+    for (uint32_t i = begin; i < end; ++i) {
+      r.box.grow(boxes[order[i]]);
+      r.centroid_box.grow(centroids[order[i]]);
+    }
+    return r;
   }
 
-  void make_node(uint32_t node, uint32_t begin, uint32_t end, const Box& box) {
-    auto& n = nodes[node];
+  static void set_box(TriangleBvh::Node& n, const Box& box) {
     for (int k = 0; k < 3; ++k) {
       n.lo[k] = round_down(box.lo[k]);
       n.hi[k] = round_up(box.hi[k]);
     }
-    n.first = begin;
-    n.count = end - begin;
   }
 
-  // Returns the split position in [begin, end), or begin when the range should be a leaf.
-  uint32_t split(uint32_t begin, uint32_t end, int depth) {
+  // Splits r into left and right (returning true), or returns false when r should be
+  // a leaf. The children's boxes come from the bins when SAH splits; a median split
+  // measures them again.
+  bool split(const Range& r, Range& left_range, Range& right_range) {
+    const uint32_t begin = r.begin, end = r.end;
+    const int depth = r.depth;
     const uint32_t count = end - begin;
-    if (count <= kLeafTarget) return begin;
-    Box centroid_box;
-    for (uint32_t i = begin; i < end; ++i) centroid_box.grow(centroids[order[i]]);
+    if (count <= kLeafTarget) return false;
+    const Box& centroid_box = r.centroid_box;
     int axis = 0;
     for (int k = 1; k < 3; ++k)
       if (centroid_box.hi[k] - centroid_box.lo[k] > centroid_box.hi[axis] - centroid_box.lo[axis]) axis = k;
@@ -92,9 +103,11 @@ struct Builder {
                          if (centroids[a][axis] != centroids[b][axis]) return centroids[a][axis] < centroids[b][axis];
                          return a < b;
                        });
-      return mid;
+      left_range = make_range(0, begin, mid, depth + 1);
+      right_range = make_range(0, mid, end, depth + 1);
+      return true;
     };
-    if (!(extent > 0)) return count <= kLeafMax ? begin : median_split();
+    if (!(extent > 0)) return count <= kLeafMax ? false : median_split();
     if (depth >= kMedianDepth) return median_split();
 
     const double scale = kBins / extent;
@@ -102,23 +115,25 @@ struct Builder {
       int b = static_cast<int>((centroids[t][axis] - centroid_box.lo[axis]) * scale);
       return std::clamp(b, 0, kBins - 1);
     };
-    Box bin_box[kBins];
+    Box bin_box[kBins], bin_centroids[kBins];
     uint32_t bin_count[kBins] = {};
     for (uint32_t i = begin; i < end; ++i) {
       const int b = bin_of(order[i]);
       ++bin_count[b];
-      bin_box[b].grow(triangle_box(order[i]));
+      bin_box[b].grow(boxes[order[i]]);
+      bin_centroids[b].grow(centroids[order[i]]);
     }
     double right_area[kBins];
     uint32_t right_count[kBins];
-    Box acc;
+    Box all;
     uint32_t n = 0;
     for (int b = kBins - 1; b > 0; --b) {
-      acc.grow(bin_box[b]);
+      all.grow(bin_box[b]);
       n += bin_count[b];
-      right_area[b] = acc.half_area();
+      right_area[b] = all.half_area();
       right_count[b] = n;
     }
+    all.grow(bin_box[0]);
     Box left;
     uint32_t left_count = 0;
     double best_cost = std::numeric_limits<double>::infinity();
@@ -133,53 +148,94 @@ struct Builder {
         best_bin = b;
       }
     }
-    if (best_bin < 0) return count <= kLeafMax ? begin : median_split();
-    Box all = left;
-    all.grow(bin_box[kBins - 1]);
-    for (int b = 0; b < kBins; ++b) all.grow(bin_box[b]);
+    if (best_bin < 0) return count <= kLeafMax ? false : median_split();
     // Leaf cost ~ count triangle tests; a split costs a box test plus the SAH estimate.
     const double parent_area = all.half_area();
-    if (count <= kLeafMax && parent_area > 0 && best_cost / parent_area + 1.0 >= count) return begin;
+    if (count <= kLeafMax && parent_area > 0 && best_cost / parent_area + 1.0 >= count) return false;
     auto it = std::partition(order.begin() + begin, order.begin() + end,
                              [&](uint32_t t) { return bin_of(t) < best_bin; });
     const auto at = static_cast<uint32_t>(it - order.begin());
     if (at == begin || at == end) return median_split();
-    return at;
+    left_range = {0, begin, at, depth + 1, {}, {}};
+    right_range = {0, at, end, depth + 1, {}, {}};
+    for (int b = 0; b < kBins; ++b) {
+      Range& side = b < best_bin ? left_range : right_range;
+      side.box.grow(bin_box[b]);
+      side.centroid_box.grow(bin_centroids[b]);
+    }
+    return true;
   }
 
-  void run() {
+  // Builds the subtree of `root` depth-first into `nodes`. Ranges with at most
+  // `stop_below` triangles are not split but returned in `frontier` (in tree order).
+  void build(std::vector<TriangleBvh::Node>& nodes, Range root, uint32_t stop_below, std::vector<Range>* frontier) {
+    std::vector<Range> tasks{root};
+    while (!tasks.empty()) {
+      const Range r = tasks.back();
+      tasks.pop_back();
+      auto& node = nodes[r.node];
+      set_box(node, r.box);
+      node.first = r.begin;
+      node.count = r.end - r.begin;
+      if (frontier && node.count <= stop_below) {
+        frontier->push_back(r);
+        continue;
+      }
+      Range left, right;
+      if (!split(r, left, right)) continue;  // leaf
+      const auto first = static_cast<uint32_t>(nodes.size());
+      nodes.push_back({});
+      nodes.push_back({});
+      nodes[r.node].first = first;
+      nodes[r.node].count = 0;
+      left.node = first;
+      right.node = first + 1;
+      tasks.push_back(right);
+      tasks.push_back(left);
+    }
+  }
+
+  // The top of the tree is split sequentially until ranges are small enough to build
+  // independently; those subtrees are built in parallel into their own arrays and
+  // appended in tree order, so the result is the same tree as a sequential build.
+  std::vector<TriangleBvh::Node> run() {
     const auto count = static_cast<uint32_t>(triangles.size());
+    std::vector<TriangleBvh::Node> nodes;
+    if (count == 0) return nodes;
     order.resize(count);
     std::iota(order.begin(), order.end(), 0u);
+    boxes.resize(count);
     centroids.resize(count);
-    for (uint32_t t = 0; t < count; ++t) {
+    tbb::parallel_for(uint32_t{0}, count, [&](uint32_t t) {
       const auto& c = triangles[t];
+      for (const Point& p : c) boxes[t].grow(p);
       for (int k = 0; k < 3; ++k) centroids[t][k] = (c[0][k] + c[1][k] + c[2][k]) / 3.0;
-    }
-    nodes.reserve(count > 0 ? 2 * ((count + kLeafTarget - 1) / kLeafTarget) + 1 : 0);
-    if (count == 0) return;
-    struct Task {
-      uint32_t node, begin, end;
-      int depth;
-    };
-    std::vector<Task> tasks{{0, 0, count, 0}};
+    });
+    nodes.reserve(2 * ((count + kLeafTarget - 1) / kLeafTarget) + 1);
     nodes.push_back({});
-    while (!tasks.empty()) {
-      const Task task = tasks.back();
-      tasks.pop_back();
-      Box box;
-      for (uint32_t i = task.begin; i < task.end; ++i) box.grow(triangle_box(order[i]));
-      make_node(task.node, task.begin, task.end, box);
-      const uint32_t at = split(task.begin, task.end, task.depth);
-      if (at == task.begin) continue;  // leaf
-      const auto left = static_cast<uint32_t>(nodes.size());
-      nodes.push_back({});
-      nodes.push_back({});
-      nodes[task.node].first = left;
-      nodes[task.node].count = 0;
-      tasks.push_back({left + 1, at, task.end, task.depth + 1});
-      tasks.push_back({left, task.begin, at, task.depth + 1});
+    constexpr uint32_t kParallelBelow = 1u << 14;
+    std::vector<Range> frontier;
+    build(nodes, make_range(0, 0, count, 0), std::max(kParallelBelow, count / 64), &frontier);
+
+    std::vector<std::vector<TriangleBvh::Node>> subtrees(frontier.size());
+    tbb::parallel_for(size_t{0}, frontier.size(), [&](size_t i) {
+      subtrees[i].push_back({});
+      Range root = frontier[i];
+      root.node = 0;
+      build(subtrees[i], root, 0, nullptr);
+    });
+    for (size_t i = 0; i < frontier.size(); ++i) {
+      // Subtree node j > 0 lands at offset + j - 1; its root replaces the frontier node.
+      const auto offset = static_cast<uint32_t>(nodes.size());
+      auto relocate = [&](TriangleBvh::Node n) {
+        if (n.count == 0) n.first = offset + n.first - 1;
+        return n;
+      };
+      nodes[frontier[i].node] = relocate(subtrees[i][0]);
+      for (size_t j = 1; j < subtrees[i].size(); ++j) nodes.push_back(relocate(subtrees[i][j]));
+      std::vector<TriangleBvh::Node>().swap(subtrees[i]);
     }
+    return nodes;
   }
 };
 
@@ -201,9 +257,8 @@ TriangleBvh TriangleBvh::build(std::vector<TriangleCorners> triangles, std::vect
   if (!ids.empty() && ids.size() != triangles.size())
     throw Error(ErrorKind::internal, "TriangleBvh: ids and triangles differ in length");
   Builder builder{triangles, {}, {}, {}};
-  builder.run();
   TriangleBvh bvh;
-  bvh.nodes_ = std::move(builder.nodes);
+  bvh.nodes_ = builder.run();
   bvh.triangles_.resize(triangles.size());
   bvh.ids_.resize(triangles.size());
   for (size_t i = 0; i < builder.order.size(); ++i) {
@@ -212,6 +267,13 @@ TriangleBvh TriangleBvh::build(std::vector<TriangleCorners> triangles, std::vect
     bvh.ids_[i] = ids.empty() ? t : ids[t];
   }
   return bvh;
+}
+
+void TriangleBvh::nearest_from(const Point& query, uint32_t guess, Hit& hit) const {
+  const auto& t = triangles_[guess];
+  const Point closest = closest_point_on_triangle(query, t[0], t[1], t[2]);
+  const double d2 = squared_distance(query, closest);
+  if (!nearest(query, d2, hit)) hit = {d2, guess, closest};
 }
 
 bool TriangleBvh::nearest(const Point& query, Hit& hit) const {

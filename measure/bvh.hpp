@@ -21,6 +21,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "measure/point_triangle.hpp"
 #include "util/geometry.hpp"
 
 namespace qemflow::measure {
@@ -42,6 +43,13 @@ class TriangleBvh {
   // True and fills `hit` when some triangle is strictly closer than sqrt(bound_squared).
   bool nearest(const Point& query, double bound_squared, Hit& hit) const;
   bool nearest(const Point& query, Hit& hit) const;
+  // Same minimum as nearest(query, hit), warm-started from a triangle likely to be
+  // close (e.g. the previous query's hit): its exact distance is the first bound.
+  void nearest_from(const Point& query, uint32_t guess, Hit& hit) const;
+  // Calls visit(primitive, squared_distance) for every triangle with squared distance
+  // <= radius_squared, in tree order.
+  template <class Visit>
+  void for_each_within(const Point& query, double radius_squared, const Visit& visit) const;
 
   size_t size() const { return triangles_.size(); }
   bool empty() const { return triangles_.empty(); }
@@ -62,5 +70,33 @@ class TriangleBvh {
   std::vector<TriangleCorners> triangles_;
   std::vector<uint64_t> ids_;
 };
+
+template <class Visit>
+void TriangleBvh::for_each_within(const Point& query, double radius_squared, const Visit& visit) const {
+  if (nodes_.empty()) return;
+  uint32_t stack[256];  // two entries per level at most; depth stays below 128
+  int top = 0;
+  stack[top++] = 0;
+  while (top > 0) {
+    const Node& n = nodes_[stack[--top]];
+    double d2 = 0;
+    for (int k = 0; k < 3; ++k) {
+      const double lo = n.lo[k], hi = n.hi[k];
+      const double d = query[k] < lo ? lo - query[k] : (query[k] > hi ? query[k] - hi : 0.0);
+      d2 += d * d;
+    }
+    if (d2 > radius_squared) continue;
+    if (n.count == 0) {
+      stack[top++] = n.first + 1;
+      stack[top++] = n.first;
+      continue;
+    }
+    for (uint32_t i = n.first; i < n.first + n.count; ++i) {
+      const auto& t = triangles_[i];
+      const double t2 = squared_distance(query, closest_point_on_triangle(query, t[0], t[1], t[2]));
+      if (t2 <= radius_squared) visit(i, t2);
+    }
+  }
+}
 
 }  // namespace qemflow::measure

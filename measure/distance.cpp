@@ -9,6 +9,7 @@
 #include <limits>
 
 #include "measure/bvh.hpp"
+#include "measure/point_triangle.hpp"
 #include "measure/surface_sampler.hpp"
 #include "measure/topology.hpp"
 #include "measure/vec3.hpp"
@@ -21,6 +22,7 @@ namespace {
 // which is what makes sums independent of threads and chunking.
 constexpr uint64_t kBlockFaces = 1024;
 constexpr double kInfinity = std::numeric_limits<double>::infinity();
+constexpr uint32_t kNoGuess = std::numeric_limits<uint32_t>::max();
 
 struct Accumulator {
   double max = 0, face_sum = 0, face_sum2 = 0, vertex_sum = 0, vertex_sum2 = 0;
@@ -100,8 +102,9 @@ struct SimplifiedSide {
   std::vector<uint64_t> sample_offset;    // per face + 1: vertex samples then area samples
   std::vector<double> best_squared;       // per sample: running min over A's chunks
   std::vector<Point> normal;              // per face
-  std::vector<double> centroid_best_squared;
-  std::vector<double> centroid_dot;       // dot of normals with the nearest A face so far
+  std::vector<double> centroid_best;       // distance from the centroid to the nearest A face so far
+  std::vector<double> centroid_agreement;  // dot of B's normal with the unit normal of that face
+  double tie_tolerance = 0;
   TriangleBvh bvh;
 
   SimplifiedSide(const Mesh& m, uint64_t samples, uint64_t s) : mesh(m), seed(s) {
@@ -134,8 +137,11 @@ struct SimplifiedSide {
       sample_offset[f + 1] = sample_offset[f] + std::popcount(vertex_mask[f]) + face_samples[f];
     }
     best_squared.assign(sample_offset[faces], kInfinity);
-    centroid_best_squared.assign(faces, kInfinity);
-    centroid_dot.assign(faces, 0.0);
+    centroid_best.assign(faces, kInfinity);
+    centroid_agreement.assign(faces, 0.0);
+    BoundingBox box;
+    for (const Point& p : mesh.points) box.grow(p);
+    tie_tolerance = 1e-9 * box.diagonal();
     bvh = TriangleBvh::build(std::move(corners));
   }
 
@@ -157,20 +163,53 @@ struct SimplifiedSide {
         tbb::blocked_range<uint64_t>(0, faces, 256),
         [&](const tbb::blocked_range<uint64_t>& r) {
           TriangleBvh::Hit hit;
+          uint32_t guess = kNoGuess;  // the previous hit: neighbouring samples share nearest faces
           for (uint64_t f = r.begin(); f != r.end(); ++f) {
             for_each_sample(f, [&](const Point& p, bool, uint64_t s) {
-              if (chunk.nearest(p, best_squared[s], hit)) best_squared[s] = hit.squared_distance;
+              double bound = best_squared[s];
+              if (guess != kNoGuess) {
+                const auto& t = chunk.triangle(guess);
+                bound = std::min(bound, squared_distance_point_triangle(p, t[0], t[1], t[2]));
+              }
+              if (chunk.nearest(p, bound, hit)) {
+                best_squared[s] = hit.squared_distance;
+                guess = hit.primitive;
+              } else {
+                best_squared[s] = bound;
+              }
             });
-            if (squared_length(normal[f]) == 0) continue;
-            const Triangle& t = mesh.triangles[f];
-            const Point centroid = (1.0 / 3.0) * (mesh.points[t[0]] + mesh.points[t[1]] + mesh.points[t[2]]);
-            if (chunk.nearest(centroid, centroid_best_squared[f], hit)) {
-              centroid_best_squared[f] = hit.squared_distance;
-              const auto& o = chunk.triangle(hit.primitive);
-              centroid_dot[f] = dot(normal[f], triangle_normal(o[0], o[1], o[2]));
-            }
+            update_flip(chunk, f);
           }
         });
+  }
+
+  // The nearest A face to the centroid decides; faces of A within tie_tolerance of the
+  // nearest distance tie, and the best-agreeing one of a tie is taken, so a face lying
+  // on two coincident opposite sheets (or on an edge of A) is not called flipped.
+  void update_flip(const TriangleBvh& chunk, uint64_t f) {
+    if (squared_length(normal[f]) == 0) return;
+    const Triangle& t = mesh.triangles[f];
+    const Point centroid = (1.0 / 3.0) * (mesh.points[t[0]] + mesh.points[t[1]] + mesh.points[t[2]]);
+    const double best = centroid_best[f];
+    const double bound = std::isinf(best) ? kInfinity : (best + tie_tolerance) * (best + tie_tolerance);
+    TriangleBvh::Hit hit;
+    if (!chunk.nearest(centroid, bound, hit)) return;
+    const double nearest = std::sqrt(hit.squared_distance);
+    const double radius = nearest + tie_tolerance;
+    double agreement = -kInfinity;
+    chunk.for_each_within(centroid, radius * radius, [&](uint32_t primitive, double) {
+      const auto& o = chunk.triangle(primitive);
+      const Point n = triangle_normal(o[0], o[1], o[2]);
+      const double length = std::sqrt(squared_length(n));
+      agreement = std::max(agreement, length > 0 ? dot(normal[f], n) / length : 0.0);
+    });
+    if (nearest < best - tie_tolerance) {
+      centroid_best[f] = nearest;
+      centroid_agreement[f] = agreement;
+    } else {
+      centroid_best[f] = std::min(best, nearest);
+      centroid_agreement[f] = std::max(centroid_agreement[f], agreement);
+    }
   }
 
   DirectedDistance finish_b_to_a() const {
@@ -191,7 +230,7 @@ struct SimplifiedSide {
 
   uint64_t flipped_faces() const {
     uint64_t flipped = 0;
-    for (double d : centroid_dot) flipped += d < 0;
+    for (double d : centroid_agreement) flipped += d < 0;
     return flipped;
   }
 };
@@ -230,19 +269,20 @@ struct OriginalSide {
     for (const auto& partial : for_each_block<Accumulator>(block_count(n), [&](uint64_t b) {
            Accumulator acc;
            TriangleBvh::Hit hit;
+           // Warm start from the previous hit: the minimum is the same, found faster.
+           auto distance = [&](const Point& p) {
+             if (hit.primitive == kNoGuess) target.nearest(p, hit);
+             else target.nearest_from(p, hit.primitive, hit);
+             return std::sqrt(hit.squared_distance);
+           };
+           hit.primitive = kNoGuess;
            for (uint64_t i = b * kBlockFaces; i < std::min(n, (b + 1) * kBlockFaces); ++i) {
              const auto& [pa, pb, pc] = corners[i];
              for (int k = 0; k < 3; ++k)
-               if (mask[i] >> k & 1) {
-                 target.nearest(corners[i][k], hit);
-                 acc.add_vertex_sample(std::sqrt(hit.squared_distance));
-               }
+               if (mask[i] >> k & 1) acc.add_vertex_sample(distance(corners[i][k]));
              const uint64_t face = first + i;
              const uint64_t count = face_sample_count(triangle_area(pa, pb, pc), density, seed, face);
-             for (uint64_t k = 0; k < count; ++k) {
-               target.nearest(face_sample(pa, pb, pc, seed, face, k), hit);
-               acc.add_face_sample(std::sqrt(hit.squared_distance));
-             }
+             for (uint64_t k = 0; k < count; ++k) acc.add_face_sample(distance(face_sample(pa, pb, pc, seed, face, k)));
            }
            return acc;
          }))

@@ -88,6 +88,29 @@ TEST(TriangleBvh, NearestMatchesBruteForce) {
   }
 }
 
+TEST(TriangleBvh, WarmStartAndRadiusQueryMatchBruteForce) {
+  const auto tris = random_triangles(3000, 11);
+  const TriangleBvh bvh = TriangleBvh::build(tris);
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-12, 12);
+  std::uniform_int_distribution<uint32_t> any(0, 2999);
+  for (int q = 0; q < 200; ++q) {
+    const Point p{u(rng), u(rng), u(rng)};
+    TriangleBvh::Hit cold, warm;
+    ASSERT_TRUE(bvh.nearest(p, cold));
+    bvh.nearest_from(p, any(rng), warm);
+    EXPECT_EQ(warm.squared_distance, cold.squared_distance);
+    const double radius2 = cold.squared_distance * 4 + 1;
+    size_t expected = 0, got = 0;
+    for (const auto& t : tris) expected += squared_distance_point_triangle(p, t[0], t[1], t[2]) <= radius2;
+    bvh.for_each_within(p, radius2, [&](uint32_t, double d2) {
+      EXPECT_LE(d2, radius2);
+      ++got;
+    });
+    EXPECT_EQ(got, expected);
+  }
+}
+
 TEST(TriangleBvh, BoundLimitsTheSearch) {
   const auto tris = random_triangles(500, 3);
   const TriangleBvh bvh = TriangleBvh::build(tris);

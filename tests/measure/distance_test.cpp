@@ -120,6 +120,20 @@ TEST(Distance, FlippedFaceIsDetected) {
   EXPECT_LE(r.hausdorff, 1e-15);  // same surface: distances do not see orientation
 }
 
+TEST(Distance, FaceOnTwoOppositeSheetsIsNotFlipped) {
+  // A is a two-sided square (each triangle also present with reversed winding): for
+  // every face of B both a same- and an opposite-facing face of A are nearest.
+  TestMesh a = testing::square(4, 1.0, 0.0);
+  const size_t n = a.triangles.size();
+  for (size_t i = 0; i < n; ++i) a.triangles.push_back({a.triangles[i][0], a.triangles[i][2], a.triangles[i][1]});
+  const auto up = compare(a, testing::square(3, 1.0, 0.0), with_samples(1000));
+  EXPECT_EQ(up.flipped_faces, 0u);
+  TestMesh down = testing::square(3, 1.0, 0.0);
+  for (auto& t : down.triangles) std::swap(t[1], t[2]);
+  EXPECT_EQ(compare(a, down, with_samples(1000)).flipped_faces, 0u);
+  EXPECT_EQ(compare(testing::square(4, 1.0, 0.0), down, with_samples(1000)).flipped_faces, down.triangles.size());
+}
+
 bool same_bits(const DistanceReport& x, const DistanceReport& y) {
   auto eq = [](const DirectedDistance& a, const DirectedDistance& b) {
     return std::memcmp(&a.hausdorff, &b.hausdorff, sizeof(double)) == 0 &&
