@@ -206,6 +206,10 @@ void SurfaceSampler::add_faces(std::span<const PositionedFace> faces) {
 }
 
 void SurfaceSampler::merge(SurfaceSampler&& other) {
+  const SamplerOptions& o = other.options_;
+  if (o.radius != options_.radius || o.seed != options_.seed ||
+      o.candidates_per_cell != options_.candidates_per_cell || o.candidates_per_area != options_.candidates_per_area)
+    throw Error(ErrorKind::internal, "SurfaceSampler::merge: samplers built with different options");
   const uint32_t per_cell = other.options_.candidates_per_cell;
   for (size_t cell = 0; cell < other.cell_count_.size(); ++cell)
     for (uint32_t i = 0; i < other.cell_count_[cell]; ++i) offer(other.candidates_[cell * per_cell + i]);
