@@ -8,9 +8,12 @@
 // ways, chosen from the lease the loader gets:
 // - resident: all vertex positions fit the lease: they are held in memory while the
 //   faces stream by (one pass);
-// - out of core: vertices go to scratch in windows of consecutive indices; face
-//   corners are bucketed by window, each window is loaded in turn to resolve its
-//   corners, and resolved corners are regrouped by face-id range to rebuild faces.
+// - out of core: vertices go to scratch in chunks of consecutive indices. A face whose
+//   indices fall in two consecutive chunks (most faces: indices are local in real
+//   meshes) is bucketed by its first chunk and resolved with those two chunks loaded;
+//   the other faces' corners are bucketed by chunk, each chunk is loaded in turn to
+//   resolve its corners, and resolved corners are regrouped by face-id range to
+//   rebuild those faces.
 // Either way faces keep their input id and vertices their input index.
 // Memory: every buffer is sized from a lease of the governor; the loader refuses up
 // front (Error(resource)) a budget below its minimum.
@@ -53,7 +56,7 @@ struct VertexStore {
 
 struct LoadOptions {
   uint64_t faces_per_block = 1 << 20;  // sets the grid's cell count
-  // Tests: force the out-of-core dereference with windows of this many vertices and
+  // Tests: force the out-of-core dereference with chunks of this many vertices and
   // face ranges of this many faces (0 = from the lease).
   uint64_t window_vertices = 0;
   uint64_t range_faces = 0;
@@ -70,6 +73,8 @@ struct LoadedMesh {
   VertexStore vertices;
   uint64_t input_bytes = 0;
   bool out_of_core = false;
+  uint64_t local_faces = 0;   // out of core: faces resolved with two chunks loaded
+  uint64_t corner_faces = 0;  // out of core: faces resolved corner by corner
   Lease resident_lease;  // covers vertices.resident while it is held
 };
 

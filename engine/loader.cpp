@@ -21,6 +21,10 @@ struct CornerRef {
   uint64_t corner;  // face id * 3 + corner
   uint64_t vertex;
 };
+struct LocalFace {
+  uint64_t id;
+  Triangle vertices;
+};
 struct ResolvedCorner {
   uint64_t corner;
   uint64_t vertex;
@@ -207,7 +211,10 @@ class Loader {
 
   void collect_blocks(BucketSpill& blocks) {
     blocks.finish();
-    for (uint32_t c = 0; c < mesh_.grid.count(); ++c) mesh_.blocks[c] = blocks.frames(c);
+    for (uint32_t c = 0; c < mesh_.grid.count(); ++c) {
+      const auto& frames = blocks.frames(c);
+      mesh_.blocks[c].insert(mesh_.blocks[c].end(), frames.begin(), frames.end());
+    }
   }
 
   // All vertex positions in memory; faces resolved as they stream by.
@@ -277,20 +284,29 @@ class Loader {
     mesh_.resident_lease = std::move(vertex_lease);
   }
 
+  // Out of core. Vertices go to scratch in chunks of `chunk` consecutive indices. A
+  // face whose vertex indices all fall in two consecutive chunks (most faces of a
+  // real mesh: indices are local) is a *local* face: it is bucketed by the chunk of
+  // its smallest index and resolved with that chunk and the next loaded. The others go
+  // corner by corner: bucketed by chunk, resolved chunk by chunk, regrouped by
+  // face-id range and rebuilt.
   void load_out_of_core() {
     mesh_.out_of_core = true;
     progress_span_ = 0.4;
-    const uint64_t window = options_.window_vertices
-                                ? options_.window_vertices
-                                : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.3) / sizeof(Point));
-    mesh_.vertices.window = window;
+    const uint64_t chunk = options_.window_vertices
+                               ? options_.window_vertices
+                               : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.15) / sizeof(Point));
+    mesh_.vertices.window = chunk;
     const auto& info = input_.reader->info();
-    uint32_t expected_windows =
-        info.vertex_count ? uint32_t(std::max<uint64_t>((*info.vertex_count + window - 1) / window, 1)) : 16;
+    uint32_t expected_chunks =
+        info.vertex_count ? uint32_t(std::max<uint64_t>((*info.vertex_count + chunk - 1) / chunk, 1)) : 16;
 
-    // Pass 1: vertices to windows in scratch, face corners bucketed by window.
+    // Pass 1: vertices to chunks in scratch; local faces bucketed by their first
+    // chunk, the corners of the others by their vertex's chunk.
+    BucketSpill local(job_, scratch_, "local-faces", sizeof(LocalFace),
+                      spill_lease("face bucketer", 0.2, sizeof(LocalFace)), expected_chunks, "load");
     BucketSpill corners(job_, scratch_, "corners", sizeof(CornerRef),
-                        spill_lease("corner bucketer", 0.3, sizeof(CornerRef)), expected_windows, "load");
+                        spill_lease("corner bucketer", 0.1, sizeof(CornerRef)), expected_chunks, "load");
     VertexFrameWriter vertex_writer(job_, scratch_, mesh_.vertices);
     uint64_t vertex_count = 0, face_count = 0, max_index = 0;
     auto pass = input_pass();
@@ -298,48 +314,115 @@ class Loader {
       const auto& batch = item.batch;
       for (const Point& p : batch.vertices) item.box.add(p);
       uint64_t done = 0;
-      while (done < batch.vertices.size()) {  // one frame per window the batch touches
+      while (done < batch.vertices.size()) {  // one frame per chunk the batch touches
         uint64_t first = batch.first_vertex + done;
-        uint64_t w = first / window;
-        uint64_t n = std::min<uint64_t>(batch.vertices.size() - done, (w + 1) * window - first);
-        item.vertex_frames.emplace_back(w, encode_frame(first, sizeof(Point), batch.vertices.data() + done, n));
+        uint64_t c = first / chunk;
+        uint64_t n = std::min<uint64_t>(batch.vertices.size() - done, (c + 1) * chunk - first);
+        item.vertex_frames.emplace_back(c, encode_frame(first, sizeof(Point), batch.vertices.data() + done, n));
         done += n;
       }
     };
     pass.sink = [&](InputItem& item, Lease& lease) {
       const auto& batch = item.batch;
       box_.add(item.box);
-      for (auto& [w, frame] : item.vertex_frames) {
+      for (auto& [c, frame] : item.vertex_frames) {
         uint64_t first = 0, count = 0;
         std::memcpy(&first, frame.data() + 12, 8);  // the frame header's tag and count
         std::memcpy(&count, frame.data() + 20, 8);
         Lease frame_lease = lease.split(frame.capacity());
-        vertex_writer.write(w, std::move(frame), count, first, std::move(frame_lease));
+        vertex_writer.write(c, std::move(frame), count, first, std::move(frame_lease));
       }
       vertex_count = std::max<uint64_t>(vertex_count, batch.first_vertex + batch.vertices.size());
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
         uint64_t face = batch.first_triangle + i;
-        for (int k = 0; k < 3; ++k) {
-          uint64_t v = batch.triangles[i][k];
-          max_index = std::max(max_index, v);
-          if (info.vertex_count && v >= *info.vertex_count) index_out_of_range(input_.path, face, v, *info.vertex_count);
-          CornerRef ref{face * 3 + uint64_t(k), v};
-          corners.add(uint32_t(v / window), &ref);
+        const Triangle& t = batch.triangles[i];
+        uint64_t lo = std::min({t[0], t[1], t[2]}), hi = std::max({t[0], t[1], t[2]});
+        max_index = std::max(max_index, hi);
+        if (info.vertex_count && hi >= *info.vertex_count) index_out_of_range(input_.path, face, hi, *info.vertex_count);
+        if (hi / chunk <= lo / chunk + 1) {
+          LocalFace record{face, t};
+          local.add(uint32_t(lo / chunk), &record);
+          ++mesh_.local_faces;
+          continue;
         }
+        for (int k = 0; k < 3; ++k) {
+          CornerRef ref{face * 3 + uint64_t(k), t[k]};
+          corners.add(uint32_t(t[k] / chunk), &ref);
+        }
+        ++mesh_.corner_faces;
       }
       if (!batch.triangles.empty()) face_count = std::max<uint64_t>(face_count, batch.first_triangle + batch.triangles.size());
     };
     run_stream_pass(job_, pass);
     vertex_writer.finish();
+    local.finish();
     corners.finish();
     if (face_count && max_index >= vertex_count) index_out_of_range(input_.path, 0, max_index, vertex_count);
     mesh_.vertex_count = mesh_.vertices.count = vertex_count;
     mesh_.face_count = face_count;
     mesh_.float_exact = box_.float_exact;
-    mesh_.vertices.windows.resize(std::max<uint64_t>((vertex_count + window - 1) / window, 1));
+    const uint32_t chunks = uint32_t(std::max<uint64_t>((vertex_count + chunk - 1) / chunk, 1));
+    mesh_.vertices.windows.resize(chunks);
     input_.reader.reset();
+    if (vertex_count == 0) box_.min = box_.max = Point{0, 0, 0};
+    build_grid(face_count);
 
-    // Pass 2: per window, resolve the corners that point into it; regroup by face range.
+    resolve_local_faces(local, chunk, chunks);
+    if (corners.records() > 0) resolve_corner_faces(corners, chunk, chunks);
+  }
+
+  // Pass 2: per chunk c, with chunks c and c+1 loaded, the local faces of bucket c
+  // become whole faces and go to their blocks.
+  void resolve_local_faces(BucketSpill& local, uint64_t chunk, uint32_t chunks) {
+    BucketSpill blocks(job_, scratch_, "blocks-local", sizeof(BlockFace),
+                       spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
+    Lease pair_lease = job_.governor().acquire(job_.owner("vertex window"), 2 * chunk * sizeof(Point),
+                                               2 * chunk * sizeof(Point));
+    std::vector<Point> pair(2 * chunk);  // chunks c and c+1
+    uint32_t upper_loaded = UINT32_MAX;  // which chunk sits in the upper half
+    for (uint32_t c = 0; c < chunks && c < local.bucket_count(); ++c) {
+      if (local.frames(c).empty()) continue;
+      if (upper_loaded == c) {
+        std::copy(pair.begin() + int64_t(chunk), pair.end(), pair.begin());
+      } else {
+        load_vertex_window(job_, scratch_, mesh_.vertices, c, pair.data());
+      }
+      upper_loaded = UINT32_MAX;
+      if (c + 1 < chunks) {
+        load_vertex_window(job_, scratch_, mesh_.vertices, c + 1, pair.data() + chunk);
+        upper_loaded = c + 1;
+      }
+      const uint64_t first = uint64_t(c) * chunk;
+      for_each_frame(
+          job_, scratch_, "resolve", "local face frames", local.frames(c), sizeof(LocalFace),
+          [&](const FrameHeader& header, Bytes& records, Lease&) {
+            const auto* faces = reinterpret_cast<const LocalFace*>(records.data());
+            Bytes out(header.count * sizeof(BlockFace));
+            auto* resolved = reinterpret_cast<BlockFace*>(out.data());
+            for (uint64_t i = 0; i < header.count; ++i) {
+              resolved[i].id = faces[i].id;
+              resolved[i].vertices = faces[i].vertices;
+              for (int k = 0; k < 3; ++k) resolved[i].positions[k] = pair[faces[i].vertices[k] - first];
+            }
+            records.swap(out);
+          },
+          [&](const FrameHeader& header, Bytes& records, Lease&) {
+            const auto* faces = reinterpret_cast<const BlockFace*>(records.data());
+            for (uint64_t i = 0; i < header.count; ++i) add_face(blocks, faces[i]);
+          },
+          sizeof(BlockFace));
+      job_.progress(0.4 + 0.3 * double(c + 1) / chunks, "resolve");
+    }
+    pair_lease.release();
+    pair = {};
+    collect_blocks(blocks);
+    remove_files(local);
+  }
+
+  // Passes 3 and 4, for faces that span chunks: corners resolved chunk by chunk and
+  // regrouped by face-id range, then faces rebuilt range by range.
+  void resolve_corner_faces(BucketSpill& corners, uint64_t chunk, uint32_t chunks) {
+    const uint64_t face_count = mesh_.face_count;
     const uint64_t range = options_.range_faces
                                ? options_.range_faces
                                : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.3) / (3 * 32));
@@ -347,18 +430,16 @@ class Loader {
     BucketSpill resolved(job_, scratch_, "resolved", sizeof(ResolvedCorner),
                          spill_lease("corner resolver", 0.3, sizeof(ResolvedCorner)), uint32_t(range_count),
                          "resolve");
-    uint32_t windows = uint32_t(mesh_.vertices.windows.size());
-    for (uint32_t w = 0; w < windows && w < corners.bucket_count(); ++w) {
-      if (corners.frames(w).empty()) continue;
-      uint64_t first = uint64_t(w) * window;
-      uint64_t n = std::min<uint64_t>(window, vertex_count - first);
+    for (uint32_t c = 0; c < chunks && c < corners.bucket_count(); ++c) {
+      if (corners.frames(c).empty()) continue;
+      uint64_t first = uint64_t(c) * chunk;
+      uint64_t n = std::min<uint64_t>(chunk, mesh_.vertex_count - first);
       Lease window_lease = job_.governor().acquire(job_.owner("vertex window"), n * sizeof(Point), n * sizeof(Point));
       std::vector<Point> positions(n);
-      load_vertex_window(job_, scratch_, mesh_.vertices, w, positions.data());
+      load_vertex_window(job_, scratch_, mesh_.vertices, c, positions.data());
       for_each_frame(
-          job_, scratch_, "resolve", "corner frames", corners.frames(w), sizeof(CornerRef),
+          job_, scratch_, "resolve", "corner frames", corners.frames(c), sizeof(CornerRef),
           [&](const FrameHeader& header, Bytes& records, Lease&) {
-            // Resolve in place: each CornerRef becomes a ResolvedCorner in a new buffer.
             const auto* refs = reinterpret_cast<const CornerRef*>(records.data());
             Bytes out(header.count * sizeof(ResolvedCorner));
             auto* res = reinterpret_cast<ResolvedCorner*>(out.data());
@@ -372,31 +453,23 @@ class Loader {
             for (uint64_t i = 0; i < header.count; ++i) resolved.add(uint32_t(res[i].corner / 3 / range), &res[i]);
           },
           sizeof(ResolvedCorner));
-      job_.progress(0.4 + 0.2 * double(w + 1) / windows, "resolve");
+      job_.progress(0.7 + 0.1 * double(c + 1) / chunks, "resolve");
     }
     resolved.finish();
-    for (uint32_t w = 0; w < corners.bucket_count(); ++w) {
-      if (!corners.frames(w).empty()) job_.io().call("scratch remove", [&] { scratch_.remove(corners.frames(w)[0].file); });
-    }
+    remove_files(corners);
     trim_allocator();
 
-    // Pass 3: per face range, rebuild whole faces and sort them into blocks.
-    box_valid_check();
-    build_grid(face_count);
-    BucketSpill blocks(job_, scratch_, "blocks", sizeof(BlockFace),
+    BucketSpill blocks(job_, scratch_, "blocks-spanning", sizeof(BlockFace),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "assemble");
-    for (uint32_t r = 0; r < range_count; ++r) {
+    for (uint32_t r = 0; r < range_count && r < resolved.bucket_count(); ++r) {
+      if (resolved.records(r) == 0) continue;
       uint64_t first_face = uint64_t(r) * range;
       uint64_t n = std::min<uint64_t>(range, face_count - first_face);
-      if (n == 0) break;
-      if (resolved.records(r) != 3 * n) {
-        throw Error(ErrorKind::internal, "face range " + std::to_string(r) + ": " +
-                                             std::to_string(resolved.records(r)) + " corners for " +
-                                             std::to_string(n) + " faces");
-      }
-      Lease range_lease = job_.governor().acquire(job_.owner("face range"), n * 3 * 32, n * 3 * 32);
+      // Slots for every face of the range; only spanning faces fill theirs.
+      Lease range_lease = job_.governor().acquire(job_.owner("face range"), n * 3 * 32 + n, n * 3 * 32 + n);
       std::vector<uint64_t> vertex_of(3 * n);
       std::vector<Point> position_of(3 * n);
+      std::vector<uint8_t> filled(n, 0);
       for_each_frame(job_, scratch_, "assemble", "resolved frames", resolved.frames(r), sizeof(ResolvedCorner),
                      [&](const FrameHeader& header, Bytes& records, Lease&) {
                        const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
@@ -406,10 +479,16 @@ class Loader {
                          position_of[slot] = res[i].position;
                        }
                      },
-                     {}, 0);
+                     [&](const FrameHeader& header, Bytes& records, Lease&) {
+                       const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
+                       for (uint64_t i = 0; i < header.count; ++i) ++filled[res[i].corner / 3 - first_face];
+                     },
+                     0);
       Span span(&job_.trace(), &job_.activity(), "assemble faces");
       BlockFace face;
       for (uint64_t i = 0; i < n; ++i) {
+        if (filled[i] == 0) continue;
+        if (filled[i] != 3) throw Error(ErrorKind::internal, "face " + std::to_string(first_face + i) + ": corners lost");
         face.id = first_face + i;
         for (int k = 0; k < 3; ++k) {
           face.vertices[k] = vertex_of[3 * i + k];
@@ -418,16 +497,20 @@ class Loader {
         add_face(blocks, face);
       }
       job_.check();
-      job_.progress(0.6 + 0.2 * double(r + 1) / range_count, "assemble");
+      job_.progress(0.8 + 0.1 * double(r + 1) / range_count, "assemble");
     }
     collect_blocks(blocks);
-    for (uint32_t r = 0; r < resolved.bucket_count(); ++r) {
-      if (!resolved.frames(r).empty()) job_.io().call("scratch remove", [&] { scratch_.remove(resolved.frames(r)[0].file); });
-    }
+    remove_files(resolved);
   }
 
-  void box_valid_check() {
-    if (mesh_.vertex_count == 0) box_.min = box_.max = Point{0, 0, 0};
+  void remove_files(const BucketSpill& spill) {
+    std::vector<uint32_t> files;
+    for (uint32_t b = 0; b < spill.bucket_count(); ++b) {
+      if (!spill.frames(b).empty()) files.push_back(spill.frames(b)[0].file);
+    }
+    job_.io().call("scratch remove", [&] {
+      for (uint32_t f : files) scratch_.remove(f);
+    });
   }
 
   Job& job_;

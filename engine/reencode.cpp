@@ -154,6 +154,8 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["rounds"] = 0;
     result.report["blocks"] = mesh.grid.count();
     result.report["out_of_core_dereference"] = mesh.out_of_core;
+    result.report["local_faces"] = mesh.local_faces;
+    result.report["spanning_faces"] = mesh.corner_faces;
     result.report["scratch_bytes_written"] = scratch.bytes_written();
     result.report["scratch_bytes_read"] = scratch.bytes_read();
     result.report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
