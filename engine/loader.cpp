@@ -378,7 +378,7 @@ class Loader {
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
     Lease pair_lease = job_.governor().acquire(job_.owner("vertex window"), 2 * chunk * sizeof(Point),
                                                2 * chunk * sizeof(Point));
-    std::vector<Point> pair(2 * chunk);  // chunks c and c+1
+    UninitializedVector<Point> pair(2 * chunk);  // chunks c and c+1
     uint32_t upper_loaded = UINT32_MAX;  // which chunk sits in the upper half
     for (uint32_t c = 0; c < chunks && c < local.bucket_count(); ++c) {
       if (local.frames(c).empty()) continue;
@@ -435,7 +435,7 @@ class Loader {
       uint64_t first = uint64_t(c) * chunk;
       uint64_t n = std::min<uint64_t>(chunk, mesh_.vertex_count - first);
       Lease window_lease = job_.governor().acquire(job_.owner("vertex window"), n * sizeof(Point), n * sizeof(Point));
-      std::vector<Point> positions(n);
+      UninitializedVector<Point> positions(n);
       load_vertex_window(job_, scratch_, mesh_.vertices, c, positions.data());
       for_each_frame(
           job_, scratch_, "resolve", "corner frames", corners.frames(c), sizeof(CornerRef),
@@ -467,8 +467,8 @@ class Loader {
       uint64_t n = std::min<uint64_t>(range, face_count - first_face);
       // Slots for every face of the range; only spanning faces fill theirs.
       Lease range_lease = job_.governor().acquire(job_.owner("face range"), n * 3 * 32 + n, n * 3 * 32 + n);
-      std::vector<uint64_t> vertex_of(3 * n);
-      std::vector<Point> position_of(3 * n);
+      UninitializedVector<uint64_t> vertex_of(3 * n);
+      UninitializedVector<Point> position_of(3 * n);
       std::vector<uint8_t> filled(n, 0);
       for_each_frame(job_, scratch_, "assemble", "resolved frames", resolved.frames(r), sizeof(ResolvedCorner),
                      [&](const FrameHeader& header, Bytes& records, Lease&) {

@@ -10,10 +10,12 @@ uint64_t peak_resident_bytes();  // VmHWM: the high-water mark since start (or t
 // Resets VmHWM to the current RSS (Linux: "5" > /proc/self/clear_refs); false if refused.
 bool reset_peak_resident();
 
-// Process-wide glibc settings (call once, before the big work; idempotent):
-// a fixed mmap threshold so that every buffer above 256 KiB is its own mapping and is
-// unmapped on free (glibc's dynamic threshold would otherwise move big buffers onto
-// the heap, where freed space stays resident), few arenas, and a low trim threshold.
+// Process-wide glibc settings (call once, before the big work; idempotent): a fixed
+// mmap threshold of 4 MiB, so that every big buffer (vertex windows, face ranges) is
+// its own mapping, unmapped on free (glibc's dynamic threshold would otherwise move
+// big buffers onto the heap, where freed space stays resident), few arenas, and a low
+// trim threshold. Measured on 20M faces at 256M: 256 KiB costs 35% more time in page
+// faults; 16 MiB and up lets heap slack push peak RSS to within 8% of the budget.
 void tune_allocator();
 // Returns freed heap memory to the OS (malloc_trim); cheap enough between passes.
 void trim_allocator();

@@ -34,7 +34,7 @@ void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io:
     if (first >= store.count) break;
     uint64_t n = std::min(store.window, store.count - first);
     Lease lease = job.governor().acquire(job.owner("vertex window"), n * sizeof(Point), n * sizeof(Point));
-    std::vector<Point> positions(n);
+    UninitializedVector<Point> positions(n);
     load_vertex_window(job, scratch, store, w, positions.data());
     job.io().call("write vertices", [&] { writer.write_vertices(positions.data(), n); });
     job.check();
