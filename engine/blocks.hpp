@@ -36,6 +36,19 @@ struct BlockFace {
 };
 static_assert(sizeof(BlockFace) == 104);
 
+// The same face as stored when every input coordinate is a float (the usual case):
+// positions as float, exactly. A third less to compress, store and decompress.
+struct PackedBlockFace {
+  uint64_t id = 0;
+  Triangle vertices{};
+  std::array<float, 9> positions{};
+  uint32_t unused = 0;
+};
+static_assert(sizeof(PackedBlockFace) == 72);
+
+// Block records of either layout (record_size says which) to BlockFaces.
+void unpack_block_faces(const std::byte* records, uint64_t count, uint32_t record_size, BlockFace* out);
+
 struct BlockGrid {
   Point min{0, 0, 0}, max{0, 0, 0};
   std::array<uint32_t, 3> dims{1, 1, 1};
@@ -68,7 +81,8 @@ struct LoadedMesh {
   uint64_t face_count = 0;
   bool float_exact = true;  // every coordinate is a float (the input was float)
   BlockGrid grid;
-  std::vector<std::vector<FrameRef>> blocks;  // frames of BlockFace per cell
+  std::vector<std::vector<FrameRef>> blocks;  // frames of block records per cell
+  uint32_t block_record_size = sizeof(BlockFace);  // or sizeof(PackedBlockFace)
   std::vector<uint64_t> block_faces;          // faces per cell
   VertexStore vertices;
   uint64_t input_bytes = 0;

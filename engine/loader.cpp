@@ -205,8 +205,22 @@ class Loader {
 
   void add_face(BucketSpill& blocks, const BlockFace& face) {
     uint32_t cell = mesh_.grid.cell_of(barycenter(face.positions));
-    blocks.add(cell, &face);
+    if (mesh_.block_record_size == sizeof(PackedBlockFace)) {
+      PackedBlockFace packed;
+      packed.id = face.id;
+      packed.vertices = face.vertices;
+      for (int k = 0; k < 9; ++k) packed.positions[k] = float(face.positions[k / 3][k % 3]);
+      blocks.add(cell, &packed);
+    } else {
+      blocks.add(cell, &face);
+    }
     ++mesh_.block_faces[cell];
+  }
+
+  // Once every coordinate has been seen: blocks store floats when that is exact.
+  uint32_t choose_block_layout() {
+    mesh_.block_record_size = box_.float_exact ? sizeof(PackedBlockFace) : sizeof(BlockFace);
+    return mesh_.block_record_size;
   }
 
   void collect_blocks(BucketSpill& blocks) {
@@ -252,7 +266,7 @@ class Loader {
           throw_bad_input(input_.path.string(), "triangle 0", "faces before all vertices");
         }
         build_grid(polygon_count);
-        blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", uint32_t(sizeof(BlockFace)),
+        blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(),
                                                std::move(block_lease), mesh_.grid.count(), "load");
       }
       BlockFace face;
@@ -274,7 +288,7 @@ class Loader {
     }
     if (!blocks) {  // no faces at all
       build_grid(0);
-      blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", uint32_t(sizeof(BlockFace)),
+      blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(),
                                              std::move(block_lease), 1, "load");
     }
     collect_blocks(*blocks);
@@ -374,7 +388,7 @@ class Loader {
   // Pass 2: per chunk c, with chunks c and c+1 loaded, the local faces of bucket c
   // become whole faces and go to their blocks.
   void resolve_local_faces(BucketSpill& local, uint64_t chunk, uint32_t chunks) {
-    BucketSpill blocks(job_, scratch_, "blocks-local", sizeof(BlockFace),
+    BucketSpill blocks(job_, scratch_, "blocks-local", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
     Lease pair_lease = job_.governor().acquire(job_.owner("vertex window"), 2 * chunk * sizeof(Point),
                                                2 * chunk * sizeof(Point));
@@ -459,7 +473,7 @@ class Loader {
     remove_files(corners);
     trim_allocator();
 
-    BucketSpill blocks(job_, scratch_, "blocks-spanning", sizeof(BlockFace),
+    BucketSpill blocks(job_, scratch_, "blocks-spanning", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "assemble");
     for (uint32_t r = 0; r < range_count && r < resolved.bucket_count(); ++r) {
       if (resolved.records(r) == 0) continue;
@@ -524,6 +538,21 @@ class Loader {
 };
 
 }  // namespace
+
+void unpack_block_faces(const std::byte* records, uint64_t count, uint32_t record_size, BlockFace* out) {
+  if (record_size == sizeof(BlockFace)) {
+    std::memcpy(static_cast<void*>(out), records, count * sizeof(BlockFace));
+    return;
+  }
+  if (record_size != sizeof(PackedBlockFace)) throw Error(ErrorKind::internal, "unknown block record layout");
+  for (uint64_t i = 0; i < count; ++i) {
+    PackedBlockFace packed;
+    std::memcpy(&packed, records + i * sizeof packed, sizeof packed);
+    out[i].id = packed.id;
+    out[i].vertices = packed.vertices;
+    for (int k = 0; k < 9; ++k) out[i].positions[k / 3][k % 3] = packed.positions[k];
+  }
+}
 
 uint32_t BlockGrid::cell_of(const Point& p) const {
   uint32_t idx[3];

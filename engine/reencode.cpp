@@ -50,14 +50,15 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, const LoadedMesh& mesh
   uint64_t written = 0;
   size_t done = 0;
   for_each_frame(
-      job, scratch, "write", "block frames", frames, sizeof(BlockFace),
-      [](const FrameHeader& header, Bytes& records, Lease&) {
-        // Triangles packed in place at the front of the decoded faces.
+      job, scratch, "write", "block frames", frames, mesh.block_record_size,
+      [&mesh](const FrameHeader& header, Bytes& records, Lease&) {
+        // Triangles packed in place at the front of the decoded records (both block
+        // layouts hold the vertex ids at bytes 8..32).
         auto* out = reinterpret_cast<Triangle*>(records.data());
         for (uint64_t i = 0; i < header.count; ++i) {
-          BlockFace face;
-          std::memcpy(&face, records.data() + i * sizeof(BlockFace), sizeof face);
-          out[i] = face.vertices;
+          Triangle t;
+          std::memcpy(&t, records.data() + i * mesh.block_record_size + 8, sizeof t);
+          out[i] = t;
         }
       },
       [&](const FrameHeader& header, Bytes& records, Lease& lease) {
@@ -155,6 +156,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["blocks"] = mesh.grid.count();
     result.report["out_of_core_dereference"] = mesh.out_of_core;
     result.report["local_faces"] = mesh.local_faces;
+    result.report["block_record_bytes"] = mesh.block_record_size;
     result.report["spanning_faces"] = mesh.corner_faces;
     result.report["scratch_bytes_written"] = scratch.bytes_written();
     result.report["scratch_bytes_read"] = scratch.bytes_read();

@@ -77,6 +77,26 @@ TEST(Reencode, OutOfCoreDereferenceWithTinyWindowsGivesTheSameMesh) {
   expect_same_mesh(in, dir / "out.obj");
 }
 
+TEST(Reencode, DoubleCoordinatesKeepEveryBitInBothModes) {
+  TempDir dir;
+  gen::GenOptions gen_options;
+  gen_options.faces = 5'000;
+  io::IndexedMesh mesh = gen::generate_in_memory(gen_options);
+  for (Point& p : mesh.vertices) p[0] += 1e-9;  // no longer floats
+  io::WriteOptions doubles;
+  doubles.double_precision = true;
+  io::write_mesh(dir / "in.ply", mesh, doubles);
+  for (bool out_of_core : {false, true}) {
+    Governor governor(64ull << 20, 0);
+    ReencodeOptions options{.input = dir / "in.ply", .output = dir / "out.ply", .scratch_dir = dir.path()};
+    options.load = {.faces_per_block = 500, .window_vertices = out_of_core ? 301u : 0u,
+                    .range_faces = out_of_core ? 401u : 0u, .force_out_of_core = out_of_core};
+    auto result = run_reencode(governor, options, {});
+    EXPECT_EQ(result.report["block_record_bytes"], sizeof(BlockFace));
+    expect_same_mesh(dir / "in.ply", dir / "out.ply");
+  }
+}
+
 TEST(Reencode, BlocksHoldEveryFaceOnceWithItsPositionsInItsCell) {
   TempDir dir;
   auto in = make_mesh(dir, 10'000);
@@ -89,6 +109,7 @@ TEST(Reencode, BlocksHoldEveryFaceOnceWithItsPositionsInItsCell) {
                      .range_faces = out_of_core ? 777u : 0u, .force_out_of_core = out_of_core};
     LoadedMesh loaded = load_into_blocks(job, scratch, in, load);
     EXPECT_EQ(loaded.face_count, mesh.triangles.size());
+    EXPECT_EQ(loaded.block_record_size, sizeof(PackedBlockFace));  // the generator writes floats
     if (out_of_core) {
       EXPECT_GT(loaded.local_faces, 0u);
       EXPECT_GT(loaded.corner_faces, 0u);
@@ -97,11 +118,11 @@ TEST(Reencode, BlocksHoldEveryFaceOnceWithItsPositionsInItsCell) {
     std::vector<int> seen(mesh.triangles.size(), 0);
     for (uint32_t cell = 0; cell < loaded.grid.count(); ++cell) {
       uint64_t faces_in_cell = 0;
-      for_each_frame(job, scratch, "check", "check", loaded.blocks[cell], sizeof(BlockFace),
+      for_each_frame(job, scratch, "check", "check", loaded.blocks[cell], loaded.block_record_size,
                      {}, [&](const FrameHeader& header, Bytes& records, Lease&) {
-                       for (uint64_t i = 0; i < header.count; ++i) {
-                         BlockFace face;
-                         std::memcpy(&face, records.data() + i * sizeof face, sizeof face);
+                       std::vector<BlockFace> faces(header.count);
+                       unpack_block_faces(records.data(), header.count, loaded.block_record_size, faces.data());
+                       for (const BlockFace& face : faces) {
                          ASSERT_LT(face.id, mesh.triangles.size());
                          ++seen[face.id];
                          EXPECT_EQ(face.vertices, mesh.triangles[face.id]);

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# End-to-end benchmark of the engine's re-encode pipeline (what `qemflow simplify IN OUT
+# --ratio 1` runs): a generated mesh re-encoded through uniform-grid blocks at several
+# memory budgets, against the I/O floor (reading the input and writing as many bytes as
+# the output, on the I/O thread alone, no compute).
+#
+#   bench/reencode.sh [FACES] [BUILD_DIR] [WORK_DIR] [BUDGETS...]
+#   bench/reencode.sh 100M build /tmp/qemflow-reencode 256M 1G 4G     (the defaults)
+#
+# Prints a Markdown table; every file it makes lives in WORK_DIR and is deleted at exit.
+set -euo pipefail
+FACES=${1:-100M}
+BUILD=${2:-build}
+WORK=${3:-/tmp/qemflow-reencode}
+shift $(( $# < 3 ? $# : 3 )) || true
+BUDGETS=("$@")
+[ ${#BUDGETS[@]} -eq 0 ] && BUDGETS=(256M 1G 4G)
+
+QEMFLOW="$BUILD/apps/qemflow"
+DRIVER="$BUILD/bench/engine_bench"
+mkdir -p "$WORK"
+trap 'rm -rf "$WORK"' EXIT
+
+echo "generating $FACES faces..." >&2
+"$QEMFLOW" gen "$WORK/in.ply" --faces "$FACES" >&2
+IN_BYTES=$(stat -c %s "$WORK/in.ply")
+
+echo "I/O floor..." >&2
+"$DRIVER" io-baseline "$WORK/in.ply" "$WORK" "$IN_BYTES" > "$WORK/io.json"
+IO_SECONDS=$(/usr/bin/python3 -c "import json; print(json.load(open('$WORK/io.json'))['seconds'])")
+
+ROWS=()
+for BUDGET in "${BUDGETS[@]}"; do
+  echo "re-encode at --mem-budget $BUDGET..." >&2
+  "$DRIVER" reencode "$WORK/in.ply" "$WORK/out.ply" --mem-budget "$BUDGET" --scratch "$WORK" \
+    --report "$WORK/report-$BUDGET.json" --quiet
+  rm -f "$WORK/out.ply"
+  ROWS+=("$(/usr/bin/python3 - "$WORK/report-$BUDGET.json" "$BUDGET" "$IO_SECONDS" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+budget, io = sys.argv[2], float(sys.argv[3])
+wall = r["wall_seconds"]
+peak = r["peak_rss_bytes"] / 2**20
+ok = "yes" if r["peak_rss_bytes"] <= r["budget_bytes"] else "**NO**"
+mbps = (r["input_bytes"] + r["output_bytes"]) / wall / 1e6
+pct = lambda s: 100 * s / wall if wall else 0
+overlap = 100 * r["overlap_seconds"] / r["io_busy_seconds"] if r["io_busy_seconds"] else 0
+mode = "out of core" if r["out_of_core_dereference"] else "resident"
+print(f"| {budget} | {r['output_faces']:,} | {mode} | {wall:.1f} | {peak:.0f} | {ok} | {mbps:.0f} | "
+      f"{wall / io:.1f}x | {pct(r['io_busy_seconds']):.0f}% | {pct(r['compute_busy_seconds']):.0f}% | "
+      f"{overlap:.0f}% | {r['scratch_bytes_written'] / 1e9:.2f} |")
+PY
+)")
+done
+
+echo
+echo "Input: $FACES faces, $(( IN_BYTES / 1000000 )) MB binary PLY; $(nproc) cores."
+echo "I/O floor (read input + write the same bytes on the I/O thread alone): ${IO_SECONDS} s."
+echo
+echo "| budget | faces | dereference | wall s | peak RSS MiB | RSS <= budget | MB/s in+out | vs I/O floor | I/O busy | compute busy | overlap | scratch GB |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+printf '%s\n' "${ROWS[@]}"
