@@ -6,17 +6,11 @@
 #include <cmath>
 #include <cstdint>
 
+#include "util/hash.hpp"
+
 namespace qemflow::gen::noise {
 
-// splitmix64's finaliser: a bijection on 64 bits with full avalanche.
-inline uint64_t mix(uint64_t x) {
-  x ^= x >> 30;
-  x *= 0xbf58476d1ce4e5b9ULL;
-  x ^= x >> 27;
-  x *= 0x94d049bb133111ebULL;
-  x ^= x >> 31;
-  return x;
-}
+inline uint64_t mix(uint64_t x) { return mix64(x); }
 
 inline uint64_t hash(uint64_t seed, int64_t a, int64_t b = 0, int64_t c = 0) {
   return mix(seed + static_cast<uint64_t>(a) * 0x9e3779b97f4a7c15ULL +

@@ -12,24 +12,14 @@
 #include <cstdint>
 
 #include "measure/vec3.hpp"
+#include "util/hash.hpp"
 
 namespace qemflow::measure {
-
-inline uint64_t mix64(uint64_t x) {  // splitmix64's finaliser: a bijection with full avalanche
-  x ^= x >> 30;
-  x *= 0xbf58476d1ce4e5b9ULL;
-  x ^= x >> 27;
-  x *= 0x94d049bb133111ebULL;
-  x ^= x >> 31;
-  return x;
-}
 
 inline uint64_t sample_hash(uint64_t seed, uint64_t face, uint64_t counter) {
   return mix64(mix64(seed ^ mix64(face + 0x9e3779b97f4a7c15ULL)) + counter * 0xd1b54a32d192ed03ULL);
 }
 
-// Uniform in [0,1) with 53 random bits.
-inline double unit_double(uint64_t bits) { return static_cast<double>(bits >> 11) * 0x1.0p-53; }
 
 inline constexpr uint64_t kSampleCountCounter = ~0ULL;  // the counter reserved for the count's u
 
