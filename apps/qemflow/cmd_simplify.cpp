@@ -1,14 +1,160 @@
-// `qemflow simplify` — placeholder until its issue lands.
+// `qemflow simplify IN OUT (--target-faces N | --ratio R) --in-core [--threads N]
+//  [--no-weld] [--report FILE.json] [--quiet]`: the in-core reference run of the
+// decimator (nodes/decimate/simplify.hpp). The out-of-core pipeline will share this
+// command; until it lands every run is in core.
+#include <sys/resource.h>
+#include <tbb/global_control.h>
+#include <tbb/info.h>
+
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+
 #include "apps/qemflow/commands.hpp"
+#include "io/indexed_mesh.hpp"
+#include "nodes/decimate/simplify.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::cli {
+namespace {
+
+struct SimplifyArgs {
+  std::string input, output, report;
+  std::optional<uint64_t> target_faces;
+  std::optional<double> ratio;
+  int threads = 0;
+  bool in_core = false, no_weld = false, quiet = false, double_precision = false;
+  double round_fraction = nodes::SimplifyOptions{}.round_fraction;
+  double candidate_fraction = nodes::SimplifyOptions{}.candidate_fraction;
+  nodes::DecimateParams params;
+};
+
+uint64_t peak_rss_bytes() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<uint64_t>(usage.ru_maxrss) * 1024;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+void run_simplify(const SimplifyArgs& args) {
+  if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
+    throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
+  std::optional<tbb::global_control> limit;
+  if (args.threads > 0) limit.emplace(tbb::global_control::max_allowed_parallelism, args.threads);
+  const int threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
+
+  const auto t0 = std::chrono::steady_clock::now();
+  io::IndexedMesh mesh = io::read_mesh(args.input);
+  const double seconds_read = seconds_since(t0);
+
+  nodes::SimplifyOptions options;
+  options.target_faces = args.target_faces;
+  options.ratio = args.ratio;
+  options.weld = !args.no_weld;
+  options.round_fraction = args.round_fraction;
+  options.candidate_fraction = args.candidate_fraction;
+  options.params = args.params;
+  nodes::SimplifyResult result =
+      nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), options);
+
+  const auto t1 = std::chrono::steady_clock::now();
+  io::IndexedMesh out{std::move(result.points), std::move(result.triangles)};
+  io::WriteOptions write_options;
+  write_options.double_precision = args.double_precision;
+  io::write_mesh(args.output, out, write_options);
+  const double seconds_write = seconds_since(t1);
+  const double seconds_total = seconds_since(t0);
+  const auto& st = result.stats;
+
+  if (!args.report.empty()) {
+    nlohmann::json report = {
+        {"command", "simplify"},
+        {"input", args.input},
+        {"output", args.output},
+        {"mode", "in-core"},
+        {"threads", threads},
+        {"input_vertices", st.input_vertices},
+        {"input_faces", st.input_faces},
+        {"target_faces", st.target_faces},
+        {"output_vertices", st.output_vertices},
+        {"output_faces", st.output_faces},
+        {"welded_vertices", st.welded_vertices},
+        {"locked_vertices", st.locked_vertices},
+        {"dropped_zero_area_faces", st.dropped_faces},
+        {"rounds", st.rounds},
+        {"patches", 1},
+        {"budget_bytes", 0},
+        {"peak_rss_bytes", peak_rss_bytes()},
+        {"wall_seconds", seconds_total},
+        {"stage_seconds",
+         {{"read", seconds_read},
+          {"setup", st.seconds_setup},
+          {"rounds", st.seconds_rounds},
+          {"extract", st.seconds_extract},
+          {"write", seconds_write}}},
+    };
+    std::ofstream file(args.report);
+    file << report.dump(2) << "\n";
+    if (!file) throw Error(ErrorKind::resource, args.report + ": cannot write report");
+  }
+  if (!args.quiet) {
+    std::fprintf(stderr,
+                 "simplify: %llu -> %llu faces (target %llu), %llu rounds, %.2f s "
+                 "(read %.2f, setup %.2f, rounds %.2f, write %.2f), peak RSS %.1f MB\n",
+                 static_cast<unsigned long long>(st.input_faces),
+                 static_cast<unsigned long long>(st.output_faces),
+                 static_cast<unsigned long long>(st.target_faces),
+                 static_cast<unsigned long long>(st.rounds), seconds_total, seconds_read,
+                 st.seconds_setup, st.seconds_rounds, seconds_write, peak_rss_bytes() / 1e6);
+  }
+}
+
+}  // namespace
 
 void add_simplify_command(CLI::App& root, Run& run) {
-  auto* cmd = root.add_subcommand("simplify", "(simplify: not implemented yet)");
-  cmd->allow_extras();
-  cmd->callback([&run] {
-    run = [] { throw Error(ErrorKind::internal, "'simplify' is not implemented yet"); };
+  auto args = std::make_shared<SimplifyArgs>();
+  auto* cmd = root.add_subcommand("simplify", "simplify a triangle mesh with QEM edge collapses");
+  cmd->add_option("IN", args->input, "input mesh: .ply (ascii/binary), .obj, optionally .zst")->required();
+  cmd->add_option("OUT", args->output, "output mesh: .ply (binary), .obj, optionally .zst")->required();
+  auto* target = cmd->add_option("--target-faces", args->target_faces, "face count to reach");
+  auto* ratio = cmd->add_option("--ratio", args->ratio, "target as a fraction of the input faces");
+  target->excludes(ratio);
+  ratio->excludes(target);
+  cmd->add_flag("--in-core", args->in_core, "simplify the whole mesh in memory (one patch)");
+  cmd->add_option("--threads", args->threads, "worker threads (default: all cores)");
+  cmd->add_flag("--no-weld", args->no_weld, "keep vertices at identical positions apart");
+  cmd->add_option("--report", args->report, "write a JSON report to this file");
+  cmd->add_flag("--quiet", args->quiet, "no summary line on stderr");
+  cmd->add_flag("--double", args->double_precision, "write double-precision PLY vertices");
+  cmd->add_option("--round-fraction", args->round_fraction,
+                  "most faces a non-final round may remove, as a fraction of the current count")
+      ->capture_default_str();
+  cmd->add_option("--candidate-fraction", args->candidate_fraction,
+                  "most of the round's candidates (by faces removed) a non-final round may collapse")
+      ->capture_default_str();
+  cmd->add_option("--min-normal-cos", args->params.min_normal_cos,
+                  "tuning: smallest allowed cosine between a face's normals before and after a collapse")
+      ->capture_default_str();
+  cmd->add_option("--min-face-quality", args->params.min_face_quality,
+                  "tuning: collapses may not create faces with |cross|/longest_edge^2 below this")
+      ->capture_default_str();
+  cmd->add_option("--fold-cos", args->params.fold_cos,
+                  "tuning: edges whose face normals' dot product is below this keep their rim")
+      ->capture_default_str();
+  cmd->add_option("--boundary-weight", args->params.boundary_weight,
+                  "tuning: weight of the boundary-preserving quadrics")
+      ->capture_default_str();
+  cmd->callback([&run, args, target, ratio] {
+    if (target->count() + ratio->count() != 1)
+      throw CLI::ValidationError("simplify", "give exactly one of --target-faces and --ratio");
+    run = [args] { run_simplify(*args); };
   });
 }
 

@@ -7,12 +7,13 @@
 namespace qemflow::nodes {
 
 RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_faces,
-                     double round_fraction) {
+                     double round_fraction, double candidate_fraction) {
   RoundPlan plan;
   if (faces <= target_faces || total.candidate_faces == 0) return plan;
   const uint64_t needed = faces - target_faces;
-  const uint64_t budget =
-      std::max<uint64_t>(1, static_cast<uint64_t>(std::floor(round_fraction * double(faces))));
+  const uint64_t budget = std::max<uint64_t>(
+      1, static_cast<uint64_t>(std::floor(std::min(round_fraction * double(faces),
+                                                   candidate_fraction * double(total.candidate_faces)))));
   // Largest bin whose cumulative count stays within the budget (at least the first
   // non-empty bin, so every round makes progress).
   uint64_t cumulative = 0;

@@ -4,7 +4,8 @@
 // (one summary) and out of core (summed summaries) choose the same cut.
 //
 // Rule (greedy-level quality): a round removes at most `round_fraction` of the current
-// faces, taking the cheapest candidates by whole cost bins; this keeps expensive local
+// faces and at most `candidate_fraction` of what all candidates would remove, taking
+// the cheapest candidates by whole cost bins; this keeps expensive local
 // minima for later rounds, when cheaper edges have appeared, as greedy QEM would.
 // When the remaining excess fits in one round, the cut is exact instead: candidates
 // in the global total order, as long a prefix as removes no more than needed
@@ -25,7 +26,7 @@ struct RoundPlan {
 };
 
 RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_faces,
-                     double round_fraction);
+                     double round_fraction, double candidate_fraction = 1.0);
 
 // The cut removing as many faces as possible but no more than `needed`, taking
 // candidates in key order from the patches' sorted lists; nullopt when none fits.

@@ -32,6 +32,12 @@ double triangle_quality(const Vec3& p0, const Vec3& p1, const Vec3& p2, const Ve
   if (!(longest > 0.0)) return 0.0;
   return std::sqrt(dot(n, n)) / longest;
 }
+// triangle_quality(...) < limit, without the square root.
+bool below_quality(const Vec3& p0, const Vec3& p1, const Vec3& p2, const Vec3& n, double limit) {
+  const Vec3 e0 = sub(p1, p0), e1 = sub(p2, p1), e2 = sub(p0, p2);
+  const double longest = std::max({dot(e0, e0), dot(e1, e1), dot(e2, e2)});
+  return dot(n, n) < limit * limit * longest * longest;
+}
 bool contains(const std::array<uint32_t, 3>& f, uint32_t v) {
   return f[0] == v || f[1] == v || f[2] == v;
 }
@@ -124,6 +130,10 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   for (size_t f = 0; f < in.faces.size(); ++f) {
     const auto& t = in.faces[f];
     if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
+      if (params_.drop_repeated_vertex_faces) {
+        ++dropped_faces_;
+        continue;
+      }
       passthrough_.push_back(t);
       passthrough_gids_.push_back(in.face_gids[f]);
       for (uint32_t v : t) vflag_[v] |= kLocked;
@@ -150,7 +160,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   best_.assign(nv, kNone);
   best_cost_.assign(nv, 0.0);
   partner_.assign(nv, kNone);
-  dirty_.assign(nv, 1);
+  dirty_.assign(nv, kTouched);
   locked_count_ = 0;
   for (uint8_t f : vflag_) locked_count_ += (f & kLocked) ? 1 : 0;
 }
@@ -233,14 +243,28 @@ void PatchDecimator::compute_quadrics() {
       auto it = std::lower_bound(s.na.begin(), s.na.end(), std::pair<uint32_t, uint32_t>{w, 0});
       return (it != s.na.end() && it->first == w) ? it->second : 0u;
     };
+    auto unit = [](Vec3 n) {
+      const double len = std::sqrt(dot(n, n));
+      return len > 0.0 ? Vec3{n[0] / len, n[1] / len, n[2] / len} : Vec3{0, 0, 0};
+    };
     for (uint32_t f : s.faces) {
       const auto& t = fv_[f];
       const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
       for (int k = 0; k < 3; ++k) {
         const uint32_t p = t[k], r = t[(k + 1) % 3];
         if (p != v && r != v) continue;
-        if (count_of(p == v ? r : p) != 1) continue;
-        q += boundary_quadric(pos_[p], pos_[r], n, params_.boundary_weight);
+        const uint32_t w = p == v ? r : p;
+        const uint32_t count = count_of(w);
+        bool constrain = count == 1;
+        if (count == 2) {
+          for (uint32_t g : s.faces) {
+            if (g == f || !contains(fv_[g], w)) continue;
+            const auto& u = fv_[g];
+            constrain = dot(unit(n), unit(triangle_normal(pos_[u[0]], pos_[u[1]], pos_[u[2]]))) <
+                        params_.fold_cos;
+          }
+        }
+        if (constrain) q += boundary_quadric(pos_[p], pos_[r], n, params_.boundary_weight);
       }
     }
     quadric_[v] = q;
@@ -258,6 +282,7 @@ EdgeKey PatchDecimator::lme_key(uint32_t v) const {
 }
 
 bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const {
+  // a and b are unlocked, hence manifold: every edge at them has one or two faces.
   gather_faces(a, s.fa);
   gather_faces(b, s.fb);
   uint32_t opposite[2];
@@ -271,33 +296,16 @@ bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scrat
   if (shared == 0) return false;
   if (shared == 2 && opposite[0] == opposite[1]) return false;
   if (s.fa.size() + s.fb.size() == 2u * shared) return false;  // would erase a component
-
-  neighbor_counts(a, s.fa, fv_, s.others, s.na);
-  neighbor_counts(b, s.fb, fv_, s.others, s.nb);
-  bool a_border = false, b_border = false;
-  for (const auto& [w, c] : s.na) {
-    if (c > 2) return false;
-    a_border |= c == 1;
-  }
-  for (const auto& [w, c] : s.nb) {
-    if (c > 2) return false;
-    b_border |= c == 1;
-  }
   // An interior edge joining two border vertices would pinch the surface.
-  if (shared == 2 && a_border && b_border) return false;
-  // Link condition: the common neighbours are exactly the opposite vertices...
-  size_t common = 0;
-  for (auto i = s.na.begin(), j = s.nb.begin(); i != s.na.end() && j != s.nb.end();) {
-    if (i->first < j->first) {
-      ++i;
-    } else if (j->first < i->first) {
-      ++j;
-    } else {
-      if (i->first != a && i->first != b) ++common;
-      ++i, ++j;
+  if (shared == 2 && (vflag_[a] & kBorder) && (vflag_[b] & kBorder)) return false;
+  // Link condition: no common neighbour besides the opposite vertices...
+  for (uint32_t fb : s.fb) {
+    for (uint32_t x : fv_[fb]) {
+      if (x == a || x == b || x == opposite[0] || (shared == 2 && x == opposite[1])) continue;
+      for (uint32_t fa : s.fa)
+        if (contains(fv_[fa], x)) return false;
     }
   }
-  if (common != static_cast<size_t>(shared)) return false;
   // ...and the links of a and b share no edge (a tetrahedron-like pocket).
   if (shared == 2) {
     const uint32_t c = opposite[0], d = opposite[1];
@@ -314,9 +322,8 @@ bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scrat
                q2 = t[2] == moved ? p : p2;
     const Vec3 n_old = triangle_normal(p0, p1, p2);
     const Vec3 n_new = triangle_normal(q0, q1, q2);
-    const double quality_new = triangle_quality(q0, q1, q2, n_new);
-    if (quality_new < params_.min_face_quality &&
-        quality_new < triangle_quality(p0, p1, p2, n_old))
+    if (below_quality(q0, q1, q2, n_new, params_.min_face_quality) &&
+        triangle_quality(q0, q1, q2, n_new) < triangle_quality(p0, p1, p2, n_old))
       return false;
     const double old_len2 = dot(n_old, n_old);
     if (old_len2 > 0.0) {
@@ -339,12 +346,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s) {
   best_cost_[v] = 0.0;
   if (vflag_[v] & (kDead | kLocked)) return;
   gather_faces(v, s.faces);
-  s.others.clear();
-  for (uint32_t f : s.faces)
-    for (uint32_t u : fv_[f])
-      if (u != v) s.others.push_back(u);
-  std::sort(s.others.begin(), s.others.end());
-  s.others.erase(std::unique(s.others.begin(), s.others.end()), s.others.end());
+  fan_neighbors(v, s.faces, s.others);
   s.options.clear();
   for (uint32_t w : s.others) {
     if (vflag_[w] & kLocked) continue;
@@ -363,6 +365,75 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s) {
       return;
     }
   }
+}
+
+void PatchDecimator::fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces,
+                                   std::vector<uint32_t>& out) const {
+  // v is unlocked: one consistently oriented fan, so the vertex after v in each face
+  // lists every neighbour once, except the first one of a border fan.
+  out.clear();
+  for (uint32_t f : faces) {
+    const auto& t = fv_[f];
+    out.push_back(t[0] == v ? t[1] : (t[1] == v ? t[2] : t[0]));
+  }
+  if (!(vflag_[v] & kBorder)) return;
+  const size_t n = out.size();
+  for (uint32_t f : faces) {
+    const auto& t = fv_[f];
+    const uint32_t prev = t[0] == v ? t[2] : (t[1] == v ? t[0] : t[1]);
+    if (std::find(out.begin(), out.begin() + n, prev) == out.begin() + n) out.push_back(prev);
+  }
+}
+
+void PatchDecimator::refresh_best_near_touched(uint32_t v, Scratch& s) {
+  // v's own faces and edge costs are unchanged; only edges to touched neighbours can
+  // have changed validity. The cached best stays unless one of them is now valid and
+  // smaller (or the cached best itself leads to a touched vertex).
+  const uint32_t b0 = best_[v];
+  if (vflag_[v] & (kDead | kLocked)) return;
+  if (b0 != kNone && (dirty_[b0] & kTouched)) return refresh_best(v, s);
+  const EdgeKey k0 = b0 == kNone
+                         ? EdgeKey{std::numeric_limits<double>::infinity(), 0, 0}
+                         : EdgeKey{best_cost_[v], std::min(vgid_[v], vgid_[b0]), std::max(vgid_[v], vgid_[b0])};
+  gather_faces(v, s.faces);
+  fan_neighbors(v, s.faces, s.others);
+  s.options.clear();
+  for (uint32_t w : s.others) {
+    if (!(dirty_[w] & kTouched) || (vflag_[w] & kLocked)) continue;
+    const Vec3 p = edge_position(v, w);
+    const double cost = quadric_error(quadric_[v] + quadric_[w], p);
+    if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) continue;
+    const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
+    if (key < k0) s.options.push_back({key, w, p});
+  }
+  std::sort(s.options.begin(), s.options.end(),
+            [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
+  for (const auto& o : s.options) {
+    if (collapse_valid(v, o.other, o.position, s)) {
+      best_[v] = o.other;
+      best_cost_[v] = o.key.cost;
+      return;
+    }
+  }
+}
+
+void PatchDecimator::update_border(uint32_t v, Scratch& s) {
+  if (vflag_[v] & (kDead | kLocked)) return;
+  // v is unlocked (one consistently oriented fan): it is on the border iff the vertex
+  // before v in some face is not the vertex after v in any face.
+  gather_faces(v, s.faces);
+  s.others.clear();
+  for (uint32_t f : s.faces) {
+    const auto& t = fv_[f];
+    s.others.push_back(t[0] == v ? t[1] : (t[1] == v ? t[2] : t[0]));
+  }
+  bool border = false;
+  for (uint32_t f : s.faces) {
+    const auto& t = fv_[f];
+    const uint32_t prev = t[0] == v ? t[2] : (t[1] == v ? t[0] : t[1]);
+    border |= std::find(s.others.begin(), s.others.end(), prev) == s.others.end();
+  }
+  vflag_[v] = static_cast<uint8_t>(border ? (vflag_[v] | kBorder) : (vflag_[v] & ~kBorder));
 }
 
 void PatchDecimator::compact_chain(uint32_t v) {
@@ -422,12 +493,20 @@ void PatchDecimator::prepare_round() {
   std::vector<uint32_t> dirty_list;
   for (uint32_t v = 0; v < nv; ++v)
     if (dirty_[v]) dirty_list.push_back(v);
-  parallel_over(dirty_list.size(), [&](size_t i) { compact_chain(dirty_list[i]); });
   tbb::enumerable_thread_specific<Scratch> scratch;
   parallel_over(dirty_list.size(), [&](size_t i) {
-    refresh_best(dirty_list[i], scratch.local());
-    dirty_[dirty_list[i]] = 0;
+    const uint32_t v = dirty_list[i];
+    compact_chain(v);
+    if (dirty_[v] & kTouched) update_border(v, scratch.local());
+  });
+  parallel_over(dirty_list.size(), [&](size_t i) {
+    const uint32_t v = dirty_list[i];
+    if (dirty_[v] & kTouched)
+      refresh_best(v, scratch.local());
+    else
+      refresh_best_near_touched(v, scratch.local());
   }, 64);
+  for (uint32_t v : dirty_list) dirty_[v] = 0;
   parallel_over(nv, [&](size_t v) {
     const uint32_t w = best_[v];
     partner_[v] = (w != kNone && best_[w] == v) ? w : kNone;
@@ -457,6 +536,12 @@ void PatchDecimator::prepare_round() {
   for (auto& list : found) candidates_.insert(candidates_.end(), list.begin(), list.end());
   tbb::parallel_sort(candidates_.begin(), candidates_.end(),
                      [](const Candidate& x, const Candidate& y) { return x.key < y.key; });
+}
+
+void PatchDecimator::set_params(const DecimateParams& params) {
+  params_ = params;
+  std::fill(dirty_.begin(), dirty_.end(), uint8_t{kTouched});
+  candidates_.clear();
 }
 
 RoundSummary PatchDecimator::summarize() const {
@@ -506,17 +591,22 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
   // Everything whose best edge may have changed lies within 2 rings of a kept vertex.
   parallel_over(chosen.size(), [&](size_t i) {
     const uint32_t k = chosen[i].keep;
-    auto mark = [&](uint32_t u) { std::atomic_ref<uint8_t>(dirty_[u]).store(1, std::memory_order_relaxed); };
-    mark(k);
-    // First ring: include the faces this collapse removed, so their opposite
-    // vertices are refreshed even when no live face joins them to k any more.
+    auto mark = [&](uint32_t u, uint8_t bits) {
+      std::atomic_ref<uint8_t> flag(dirty_[u]);
+      if ((flag.load(std::memory_order_relaxed) & bits) != bits)
+        flag.fetch_or(bits, std::memory_order_relaxed);
+    };
+    mark(k, kTouched);
+    // First ring (touched: their faces changed): include the faces this collapse
+    // removed, so their opposite vertices are refreshed even when no live face joins
+    // them to k any more. Second ring: only edges to touched vertices changed.
     for (uint32_t c1 = head_[k]; c1 != kNone; c1 = next_[c1]) {
       for (uint32_t u : fv_[c1 / 3]) {
         if (u == k) continue;
-        mark(u);
+        mark(u, kTouched);
         for (uint32_t c2 = head_[u]; c2 != kNone; c2 = next_[c2]) {
           if (!falive_[c2 / 3]) continue;
-          for (uint32_t x : fv_[c2 / 3]) mark(x);
+          for (uint32_t x : fv_[c2 / 3]) mark(x, kNearTouched);
         }
       }
     }

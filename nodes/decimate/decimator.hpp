@@ -32,8 +32,10 @@
 //   decision like any vertex, but a candidate is collapsed (and counted in summaries)
 //   only by the patch where its kept vertex is not frozen.
 // - Locked vertices never move: those on non-manifold edges, non-manifold (multi-fan)
-//   vertices, endpoints of inconsistently oriented edges, and vertices of faces with a
-//   repeated vertex (such faces are passed through unchanged). No input face is dropped.
+//   vertices, endpoints of inconsistently oriented edges; their faces pass through.
+//   Faces with a repeated vertex (zero area) are dropped and counted (dropped_faces());
+//   with drop_repeated_vertex_faces = false they pass through and lock their vertices.
+//   No other input face is ever dropped.
 // - Thread safety: a PatchDecimator is used by one caller at a time; its methods run
 //   oneTBB parallel loops internally.
 #include <array>
@@ -52,9 +54,18 @@ struct DecimateParams {
   double min_normal_cos = 0.2;
   // A face is degenerate when |cross| / (longest edge)^2 (about the sine of its
   // smallest angle) is below this; collapses may not create one (nor make one worse).
-  double min_face_quality = 1e-3;
+  double min_face_quality = 1e-6;
   // Weight of boundary-preserving quadrics (times squared edge length).
-  double boundary_weight = 1.0;
+  double boundary_weight = 10.0;
+  // Fold edges (the two faces' unit normals have a dot product below this: the rim of
+  // a thin sheet or a very sharp crease) get the same perpendicular-plane quadrics as
+  // border edges; without them the two nearly parallel face planes leave the rim free
+  // to slide inward and thin sheets shrink.
+  double fold_cos = -0.7;
+  // Faces with a repeated vertex (zero area; welding makes some) carry no surface:
+  // drop them (counted in dropped_faces()) rather than pass them through with their
+  // vertices locked, which would pin their neighbourhoods for good.
+  bool drop_repeated_vertex_faces = true;
 };
 
 struct PatchInput {
@@ -121,19 +132,30 @@ class PatchDecimator {
   // Returns the number of faces removed.
   uint64_t apply_cut(const RoundCut& cut);
 
+  // New validity parameters for the following rounds (every vertex is re-evaluated).
+  // run_rounds uses it to relax the geometric guards once no candidate is left.
+  void set_params(const DecimateParams& params);
+  const DecimateParams& params() const { return params_; }
+
   uint64_t face_count() const { return faces_alive_ + passthrough_gids_.size(); }
   uint64_t locked_vertices() const { return locked_count_; }
+  uint64_t dropped_faces() const { return dropped_faces_; }
   PatchOutput extract() const;
 
  private:
   struct Scratch;
-  enum : uint8_t { kDead = 1, kLocked = 2, kFrozen = 4 };
+  enum : uint8_t { kDead = 1, kLocked = 2, kFrozen = 4, kBorder = 8 };
+  // dirty_ bits: the vertex's faces changed (full refresh) / a neighbour's did.
+  enum : uint8_t { kTouched = 2, kNearTouched = 1 };
 
   void build_corner_chains();
   void lock_nonmanifold_vertices();
   void compute_quadrics();
   void compact_storage();
   void refresh_best(uint32_t v, Scratch& s);
+  void refresh_best_near_touched(uint32_t v, Scratch& s);
+  void update_border(uint32_t v, Scratch& s);
+  void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces, std::vector<uint32_t>& out) const;
   bool collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
@@ -162,6 +184,7 @@ class PatchDecimator {
   std::vector<std::array<uint32_t, 3>> passthrough_;
   std::vector<uint64_t> passthrough_gids_;
   uint64_t locked_count_ = 0;
+  uint64_t dropped_faces_ = 0;
 
   std::vector<Candidate> candidates_;
 };

@@ -1,5 +1,6 @@
 #include "nodes/decimate/simplify.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -9,6 +10,9 @@
 
 namespace qemflow::nodes {
 namespace {
+
+constexpr double kRelaxedNormalCos = 0.0;
+constexpr double kRelaxedFaceQuality = 1e-9;
 
 double seconds_since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -23,15 +27,27 @@ uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options)
 }
 
 uint64_t run_rounds(PatchDecimator& decimator, uint64_t target_faces, double round_fraction,
+                    double candidate_fraction,
                     const std::function<void(uint64_t, uint64_t)>& on_round) {
   uint64_t rounds = 0;
   while (decimator.face_count() > target_faces) {
     decimator.prepare_round();
     const RoundSummary summary = decimator.summarize();
     const RoundPlan plan =
-        plan_round(summary, decimator.face_count(), target_faces, round_fraction);
+        plan_round(summary, decimator.face_count(), target_faces, round_fraction,
+                   candidate_fraction);
     RoundCut cut;
-    if (plan.kind == RoundPlan::Kind::stop) break;
+    if (plan.kind == RoundPlan::Kind::stop) {
+      // No valid candidate left above the target: relax the geometric guards once
+      // (normals may turn up to 90 degrees, faces may get thin but not degenerate).
+      // A global decision (every patch sees zero candidates), so partition-invariant.
+      DecimateParams relaxed = decimator.params();
+      if (summary.candidate_faces != 0 || relaxed.min_normal_cos <= kRelaxedNormalCos) break;
+      relaxed.min_normal_cos = kRelaxedNormalCos;
+      relaxed.min_face_quality = std::min(relaxed.min_face_quality, kRelaxedFaceQuality);
+      decimator.set_params(relaxed);
+      continue;
+    }
     if (plan.kind == RoundPlan::Kind::bin_cut) {
       cut = plan.cut;
     } else {
@@ -95,10 +111,12 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
 
   PatchDecimator decimator(std::move(input), options.params);
   st.locked_vertices = decimator.locked_vertices();
+  st.dropped_faces = decimator.dropped_faces();
   st.seconds_setup = seconds_since(t0);
 
   const auto t1 = std::chrono::steady_clock::now();
-  st.rounds = run_rounds(decimator, st.target_faces, options.round_fraction, options.on_round);
+  st.rounds = run_rounds(decimator, st.target_faces, options.round_fraction,
+                         options.candidate_fraction, options.on_round);
   st.seconds_rounds = seconds_since(t1);
 
   const auto t2 = std::chrono::steady_clock::now();

@@ -7,8 +7,8 @@
 // face id, positions as computed) is identical for any oneTBB thread count. The target
 // is met exactly unless topology forbids (then within +2: closed meshes keep an even
 // face count, tetrahedra and locked regions cannot shrink). Never drops input faces
-// silently: faces with repeated vertices and faces around non-manifold vertices pass
-// through. Unreferenced vertices are not written.
+// silently: faces around non-manifold vertices pass through; faces with a repeated
+// vertex (zero area) are dropped and counted in stats.dropped_faces. Unreferenced vertices are not written.
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -25,6 +25,7 @@ struct SimplifyOptions {
   std::optional<double> ratio;
   bool weld = true;
   double round_fraction = 0.1;  // most faces a non-final round may remove
+  double candidate_fraction = 0.5;  // most of the candidates' faces a round may remove
   DecimateParams params;
   // Called after each round with (round, faces now); may be empty.
   std::function<void(uint64_t, uint64_t)> on_round;
@@ -34,6 +35,7 @@ struct SimplifyStats {
   uint64_t input_vertices = 0, input_faces = 0;
   uint64_t welded_vertices = 0;      // vertices merged into an earlier duplicate
   uint64_t locked_vertices = 0;
+  uint64_t dropped_faces = 0;        // faces with a repeated vertex (zero area)
   uint64_t target_faces = 0;
   uint64_t output_vertices = 0, output_faces = 0;
   uint64_t rounds = 0;
@@ -56,6 +58,7 @@ uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options)
 
 // The round loop on one patch holding the whole mesh (exposed for tests/benchmarks).
 uint64_t run_rounds(PatchDecimator& decimator, uint64_t target_faces, double round_fraction,
+                    double candidate_fraction,
                     const std::function<void(uint64_t, uint64_t)>& on_round = {});
 
 }  // namespace qemflow::nodes

@@ -139,9 +139,14 @@ TEST(Decimate, NonManifoldAndDegenerateInputIsSimplifiedAroundNotDropped) {
   m.points.push_back({9, 9, 9});
   const auto r = run(m, 20);
   EXPECT_LE(r.triangles.size(), 40u);
+  EXPECT_EQ(r.stats.dropped_faces, 1u);  // the repeated-vertex face, counted
   const auto t = topology(r.points, r.triangles);
   EXPECT_EQ(t.nonmanifold_edges, 1u);  // the fin's edge survives, no new one
-  EXPECT_EQ(t.degenerate_faces, 1u);   // only the input's repeated-vertex face
+  EXPECT_EQ(t.degenerate_faces, 0u);
+  // The fin itself passes through untouched.
+  bool apex_kept = false;
+  for (const auto& p : r.points) apex_kept |= p == Point{0.5, 0.5, 0.5};
+  EXPECT_TRUE(apex_kept);
   for (const auto& p : r.points) EXPECT_NE(p[0], 9.0);
 }
 
