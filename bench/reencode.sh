@@ -48,15 +48,15 @@ overlap = 100 * r["overlap_seconds"] / r["io_busy_seconds"] if r["io_busy_second
 mode = "out of core" if r["out_of_core_dereference"] else "resident"
 print(f"| {budget} | {r['output_faces']:,} | {mode} | {wall:.1f} | {peak:.0f} | {ok} | {mbps:.0f} | "
       f"{wall / io:.1f}x | {pct(r['io_busy_seconds']):.0f}% | {pct(r['compute_busy_seconds']):.0f}% | "
-      f"{overlap:.0f}% | {r['scratch_bytes_written'] / 1e9:.2f} |")
+      f"{overlap:.0f}% | {r['cpu_seconds']:.1f} | {r['scratch_bytes_written'] / 1e9:.2f} |")
 PY
 )")
 done
 
 echo
-echo "Input: $FACES faces, $(( IN_BYTES / 1000000 )) MB binary PLY; $(nproc) cores."
+echo "Input: $FACES faces, $(( IN_BYTES / 1000000 )) MB binary PLY; $(nproc) cores; load average $(cut -d' ' -f1 /proc/loadavg) at the end."
 echo "I/O floor (read input + write the same bytes on the I/O thread alone): ${IO_SECONDS} s."
 echo
-echo "| budget | faces | dereference | wall s | peak RSS MiB | RSS <= budget | MB/s in+out | vs I/O floor | I/O busy | compute busy | overlap | scratch GB |"
-echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+echo "| budget | faces | dereference | wall s | peak RSS MiB | RSS <= budget | MB/s in+out | vs I/O floor | I/O busy | compute busy | overlap | CPU s | scratch GB |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 printf '%s\n' "${ROWS[@]}"

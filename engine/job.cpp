@@ -82,6 +82,12 @@ void Job::progress(double fraction, const std::string& stage) {
   hooks_.progress(fraction, stage);
 }
 
+StageTimer::StageTimer(Job& job, const std::string& stage) : stage_(job.stage(stage)) {}
+
+StageTimer::~StageTimer() {
+  stage_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+}
+
 StageStats& Job::stage(const std::string& name) {
   std::lock_guard lock(mutex_);
   for (auto& s : stages_) {

@@ -15,6 +15,7 @@
 #include <oneapi/tbb/task_arena.h>
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <exception>
 #include <functional>
@@ -64,6 +65,21 @@ struct StageStats {
   std::atomic<uint64_t> bytes_read{0};
   std::atomic<uint64_t> bytes_written{0};
   std::atomic<uint64_t> items{0};
+};
+
+class Job;
+
+// Adds the wall time of a scope to a stage (the pipeline's top-level phases).
+class StageTimer {
+ public:
+  StageTimer(Job& job, const std::string& stage);
+  ~StageTimer();
+  StageTimer(const StageTimer&) = delete;
+  StageTimer& operator=(const StageTimer&) = delete;
+
+ private:
+  StageStats& stage_;
+  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
 };
 
 class Job {

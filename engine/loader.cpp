@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <optional>
 
 #include "config/size.hpp"
 #include "engine/blocks.hpp"
@@ -32,9 +33,9 @@ struct ResolvedCorner {
 };
 
 // Lease per element of an input batch: the batch itself (24 bytes per vertex or
-// triangle) plus what the transform makes of it (a compressed vertex frame) plus the
-// reader library's own buffers, measured at well under this.
-constexpr uint64_t bytes_per_input_element = 96;
+// triangle) plus what the transform makes of it (a compressed vertex frame, or a block
+// record of up to 104 bytes and its cell) plus the reader library's own buffers.
+constexpr uint64_t bytes_per_input_element = 160;
 constexpr uint64_t min_input_lease = 64 * bytes_per_input_element;
 constexpr uint64_t max_input_lease = 4ull << 20;
 
@@ -82,6 +83,8 @@ struct InputItem {
   io::MeshBatch batch;
   Box box;
   std::vector<std::pair<uint64_t, Bytes>> vertex_frames;  // (window, frame)
+  Bytes block_records;                                    // faces made into block records
+  std::vector<uint32_t> cells;                            // and their cells
 };
 
 // The input reader, driven from the I/O thread only.
@@ -93,6 +96,34 @@ struct InputStream {
     size_t elements = std::max<uint64_t>(lease.bytes() / bytes_per_input_element, 64);
     return reader->next(item.batch, elements) &&
            (!item.batch.vertices.empty() || !item.batch.triangles.empty());
+  }
+  // Vertices first, then faces, as two passes: the vertex pass ends at the first
+  // triangle, which is carried over to the face pass.
+  std::optional<io::MeshBatch> carried;
+  bool vertices_done = false;
+  bool read_vertices(InputItem& item, Lease& lease) {
+    if (vertices_done || !read(item, lease)) return false;
+    if (!item.batch.triangles.empty()) {
+      vertices_done = true;
+      carried.emplace();
+      carried->first_triangle = item.batch.first_triangle;
+      carried->triangles = std::move(item.batch.triangles);
+      item.batch.triangles.clear();
+    }
+    return !item.batch.vertices.empty();
+  }
+  bool read_faces(InputItem& item, Lease& lease) {
+    if (carried) {
+      item.batch = std::move(*carried);
+      carried.reset();
+      return true;
+    }
+    if (!read(item, lease)) return false;
+    if (!item.batch.vertices.empty()) {
+      throw_bad_input(path.string(), "vertex " + std::to_string(item.batch.first_vertex),
+                      "vertices after the first face");
+    }
+    return true;
   }
 };
 
@@ -177,7 +208,8 @@ class Loader {
  private:
   Lease spill_lease(const char* owner, double fraction, uint32_t record_size) {
     uint64_t min = BucketSpill::min_lease_bytes(record_size);
-    uint64_t max = std::max<uint64_t>(min, uint64_t(double(capacity_) * fraction));
+    // Past a few hundred MiB, bigger spill buffers only make bigger frames.
+    uint64_t max = std::clamp<uint64_t>(uint64_t(double(capacity_) * fraction), min, 192ull << 20);
     return job_.governor().acquire(job_.owner(owner), min, max, [this] { return job_.stopped(); });
   }
 
@@ -190,11 +222,15 @@ class Loader {
     pass.max_item_bytes = std::clamp<uint64_t>(capacity_ / 32, min_input_lease, max_input_lease);
     pass.read = [this](InputItem& item, Lease& lease) {
       bool more = input_.read(item, lease);
-      job_.stage("load").bytes_read = input_.reader->bytes_read();
-      if (input_.size) job_.progress(progress_span_ * double(input_.reader->bytes_read()) / double(input_.size), "load");
+      report_read_progress();
       return more;
     };
     return pass;
+  }
+
+  void report_read_progress() {
+    job_.stage("load").bytes_read = input_.reader->bytes_read();
+    if (input_.size) job_.progress(progress_span_ * double(input_.reader->bytes_read()) / double(input_.size), "load");
   }
 
   void build_grid(uint64_t faces) {
@@ -204,17 +240,31 @@ class Loader {
   }
 
   void add_face(BucketSpill& blocks, const BlockFace& face) {
-    uint32_t cell = mesh_.grid.cell_of(barycenter(face.positions));
+    std::byte record[sizeof(BlockFace)];
+    uint32_t cell = make_record(face, record);
+    blocks.add(cell, record);
+    ++mesh_.block_faces[cell];
+  }
+
+  // A face as its block record at `out` (block_record_size bytes); returns its cell.
+  // Any thread.
+  uint32_t make_record(const BlockFace& face, std::byte* out) const {
     if (mesh_.block_record_size == sizeof(PackedBlockFace)) {
       PackedBlockFace packed;
       packed.id = face.id;
       packed.vertices = face.vertices;
       for (int k = 0; k < 9; ++k) packed.positions[k] = float(face.positions[k / 3][k % 3]);
-      blocks.add(cell, &packed);
+      std::memcpy(out, &packed, sizeof packed);
     } else {
-      blocks.add(cell, &face);
+      std::memcpy(out, &face, sizeof face);
     }
-    ++mesh_.block_faces[cell];
+    return mesh_.grid.cell_of(barycenter(face.positions));
+  }
+  void add_records(BucketSpill& blocks, const Bytes& records, const std::vector<uint32_t>& cells) {
+    for (size_t i = 0; i < cells.size(); ++i) {
+      blocks.add(cells[i], records.data() + i * mesh_.block_record_size);
+      ++mesh_.block_faces[cells[i]];
+    }
   }
 
   // Once every coordinate has been seen: blocks store floats when that is exact.
@@ -247,28 +297,48 @@ class Loader {
     Lease block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
     uint64_t vertices_seen = 0;
 
-    auto pass = input_pass();
-    pass.ordered = true;  // every vertex before the first face, as PLY sends them
-    pass.sink = [&](InputItem& item, Lease&) {
+    StageTimer timer(job_, "load");
+    // Pass A: vertices, copied in place (batches hold disjoint index ranges).
+    auto vertex_pass = input_pass();
+    vertex_pass.read = [this](InputItem& item, Lease& lease) {
+      bool more = input_.read_vertices(item, lease);
+      report_read_progress();
+      return more;
+    };
+    vertex_pass.transform = [&](InputItem& item, Lease&) {
       const auto& batch = item.batch;
-      if (!batch.vertices.empty()) {
-        if (batch.first_vertex + batch.vertices.size() > vertex_count) {
-          throw_bad_input(input_.path.string(), "vertex " + std::to_string(batch.first_vertex),
-                          "more vertices than the header declares");
-        }
-        std::copy(batch.vertices.begin(), batch.vertices.end(), positions.begin() + batch.first_vertex);
-        for (const Point& p : batch.vertices) box_.add(p);
-        vertices_seen += batch.vertices.size();
+      if (batch.first_vertex + batch.vertices.size() > vertex_count) {
+        throw_bad_input(input_.path.string(), "vertex " + std::to_string(batch.first_vertex),
+                        "more vertices than the header declares");
       }
-      if (batch.triangles.empty()) return;
-      if (!blocks) {
-        if (vertices_seen != vertex_count) {
-          throw_bad_input(input_.path.string(), "triangle 0", "faces before all vertices");
-        }
-        build_grid(polygon_count);
-        blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(),
-                                               std::move(block_lease), mesh_.grid.count(), "load");
-      }
+      std::copy(batch.vertices.begin(), batch.vertices.end(), positions.begin() + int64_t(batch.first_vertex));
+      for (const Point& p : batch.vertices) item.box.add(p);
+    };
+    vertex_pass.sink = [&](InputItem& item, Lease&) {
+      box_.add(item.box);
+      vertices_seen += item.batch.vertices.size();
+    };
+    run_stream_pass(job_, vertex_pass);
+    if (vertices_seen != vertex_count) {
+      throw_bad_input(input_.path.string(), "end of vertices",
+                      "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");
+    }
+    build_grid(polygon_count);
+    blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(), std::move(block_lease),
+                                           mesh_.grid.count(), "load");
+
+    // Pass B: faces resolved and made into block records on every compute thread;
+    // the sink only files them.
+    auto face_pass = input_pass();
+    face_pass.read = [this](InputItem& item, Lease& lease) {
+      bool more = input_.read_faces(item, lease);
+      report_read_progress();
+      return more;
+    };
+    face_pass.transform = [&](InputItem& item, Lease&) {
+      const auto& batch = item.batch;
+      item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
+      item.cells.resize(batch.triangles.size());
       BlockFace face;
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
         face.id = batch.first_triangle + i;
@@ -277,15 +347,16 @@ class Loader {
           if (face.vertices[k] >= vertex_count) index_out_of_range(input_.path, face.id, face.vertices[k], vertex_count);
           face.positions[k] = positions[face.vertices[k]];
         }
-        add_face(*blocks, face);
+        item.cells[i] = make_record(face, item.block_records.data() + i * mesh_.block_record_size);
       }
-      mesh_.face_count = batch.first_triangle + batch.triangles.size();
     };
-    run_stream_pass(job_, pass);
-    if (vertices_seen != vertex_count) {
-      throw_bad_input(input_.path.string(), "end of file",
-                      "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");
-    }
+    face_pass.sink = [&](InputItem& item, Lease&) {
+      add_records(*blocks, item.block_records, item.cells);
+      if (!item.batch.triangles.empty()) {
+        mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
+      }
+    };
+    run_stream_pass(job_, face_pass);
     if (!blocks) {  // no faces at all
       build_grid(0);
       blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(),
@@ -323,6 +394,7 @@ class Loader {
                         spill_lease("corner bucketer", 0.1, sizeof(CornerRef)), expected_chunks, "load");
     VertexFrameWriter vertex_writer(job_, scratch_, mesh_.vertices);
     uint64_t vertex_count = 0, face_count = 0, max_index = 0;
+    std::optional<StageTimer> timer(std::in_place, job_, "load");
     auto pass = input_pass();
     pass.transform = [&](InputItem& item, Lease&) {
       const auto& batch = item.batch;
@@ -380,6 +452,7 @@ class Loader {
     input_.reader.reset();
     if (vertex_count == 0) box_.min = box_.max = Point{0, 0, 0};
     build_grid(face_count);
+    timer.reset();
 
     resolve_local_faces(local, chunk, chunks);
     if (corners.records() > 0) resolve_corner_faces(corners, chunk, chunks);
@@ -388,6 +461,7 @@ class Loader {
   // Pass 2: per chunk c, with chunks c and c+1 loaded, the local faces of bucket c
   // become whole faces and go to their blocks.
   void resolve_local_faces(BucketSpill& local, uint64_t chunk, uint32_t chunks) {
+    StageTimer timer(job_, "resolve");
     BucketSpill blocks(job_, scratch_, "blocks-local", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
     Lease pair_lease = job_.governor().acquire(job_.owner("vertex window"), 2 * chunk * sizeof(Point),
@@ -410,21 +484,29 @@ class Loader {
       for_each_frame(
           job_, scratch_, "resolve", "local face frames", local.frames(c), sizeof(LocalFace),
           [&](const FrameHeader& header, Bytes& records, Lease&) {
+            // Records become block records followed by their cells, in one buffer.
             const auto* faces = reinterpret_cast<const LocalFace*>(records.data());
-            Bytes out(header.count * sizeof(BlockFace));
-            auto* resolved = reinterpret_cast<BlockFace*>(out.data());
+            const uint32_t size = mesh_.block_record_size;
+            Bytes out(header.count * (size + sizeof(uint32_t)));
+            auto* cells = reinterpret_cast<uint32_t*>(out.data() + header.count * size);
+            BlockFace face;
             for (uint64_t i = 0; i < header.count; ++i) {
-              resolved[i].id = faces[i].id;
-              resolved[i].vertices = faces[i].vertices;
-              for (int k = 0; k < 3; ++k) resolved[i].positions[k] = pair[faces[i].vertices[k] - first];
+              face.id = faces[i].id;
+              face.vertices = faces[i].vertices;
+              for (int k = 0; k < 3; ++k) face.positions[k] = pair[faces[i].vertices[k] - first];
+              cells[i] = make_record(face, out.data() + i * size);
             }
             records.swap(out);
           },
           [&](const FrameHeader& header, Bytes& records, Lease&) {
-            const auto* faces = reinterpret_cast<const BlockFace*>(records.data());
-            for (uint64_t i = 0; i < header.count; ++i) add_face(blocks, faces[i]);
+            const uint32_t size = mesh_.block_record_size;
+            const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * size);
+            for (uint64_t i = 0; i < header.count; ++i) {
+              blocks.add(cells[i], records.data() + i * size);
+              ++mesh_.block_faces[cells[i]];
+            }
           },
-          sizeof(BlockFace));
+          sizeof(BlockFace) + sizeof(uint32_t));
       job_.progress(0.4 + 0.3 * double(c + 1) / chunks, "resolve");
     }
     pair_lease.release();
@@ -436,6 +518,7 @@ class Loader {
   // Passes 3 and 4, for faces that span chunks: corners resolved chunk by chunk and
   // regrouped by face-id range, then faces rebuilt range by range.
   void resolve_corner_faces(BucketSpill& corners, uint64_t chunk, uint32_t chunks) {
+    std::optional<StageTimer> timer(std::in_place, job_, "resolve");
     const uint64_t face_count = mesh_.face_count;
     const uint64_t range = options_.range_faces
                                ? options_.range_faces
@@ -472,6 +555,7 @@ class Loader {
     resolved.finish();
     remove_files(corners);
     trim_allocator();
+    timer.emplace(job_, "assemble");
 
     BucketSpill blocks(job_, scratch_, "blocks-spanning", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "assemble");

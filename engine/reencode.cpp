@@ -128,7 +128,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
         }
       }
     } writer_guard{job, writer};
-    auto started = Clock::now();
+    StageTimer timer(job, "write");
     write_vertices(job, scratch, mesh, *writer);
     mesh.vertices.resident = {};
     mesh.resident_lease.release();
@@ -139,7 +139,6 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     }
     job.io().call("commit output", [&] { writer->commit(); });
     job.stage("write").bytes_written = writer->bytes_written();
-    job.stage("write").seconds += std::chrono::duration<double>(Clock::now() - started).count();
     job.progress(1.0, "done");
 
     result.vertices = mesh.vertex_count;

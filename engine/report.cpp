@@ -1,5 +1,7 @@
 #include "engine/report.hpp"
 
+#include <sys/resource.h>
+
 #include <cstdio>
 #include <fstream>
 
@@ -22,6 +24,10 @@ nlohmann::json job_report(Job& job, const Governor& governor) {
   report["compute_busy_seconds"] = activity.compute_busy_seconds;
   report["compute_thread_seconds"] = activity.compute_thread_seconds;
   report["overlap_seconds"] = activity.overlap_seconds;
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  report["cpu_seconds"] = double(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+                          1e-6 * double(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
   nlohmann::json stages = nlohmann::json::array();
   for (const StageStats* s : job.stages()) {
     stages.push_back({{"name", s->name},

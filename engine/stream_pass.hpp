@@ -73,8 +73,6 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
   namespace flow = tbb::flow;
   if (!pass.next_item_bytes) job.governor().require_fits(job.owner(pass.owner), pass.min_item_bytes);
   StageStats& stage = job.stage(pass.stage);
-  auto started = Clock::now();
-
   job.arena().execute([&] {
     flow::graph graph;
     using Source = flow::async_node<flow::continue_msg, Msg>;
@@ -185,7 +183,6 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
     graph.wait_for_all();
     // The last parked step (if any) finds the pump gone and does nothing.
   });
-  stage.seconds += std::chrono::duration<double>(Clock::now() - started).count();
   job.check();
 }
 
