@@ -341,20 +341,33 @@ bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scrat
   return true;
 }
 
-void PatchDecimator::refresh_best(uint32_t v, Scratch& s) {
-  best_[v] = kNone;
-  best_cost_[v] = 0.0;
-  if (vflag_[v] & (kDead | kLocked)) return;
+void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only) {
+  if (vflag_[v] & (kDead | kLocked)) {
+    best_[v] = kNone;
+    return;
+  }
+  // Near-touched: v's own faces and edge costs are unchanged; only edges to touched
+  // neighbours can have changed validity. The cached best stays unless one of them is
+  // now valid and smaller (or the cached best itself leads to a touched vertex).
+  EdgeKey bound{std::numeric_limits<double>::infinity(), 0, 0};
+  const uint32_t b0 = best_[v];
+  if (near_touched_only && b0 != kNone && (dirty_[b0] & kTouched)) near_touched_only = false;
+  if (near_touched_only && b0 != kNone)
+    bound = {best_cost_[v], std::min(vgid_[v], vgid_[b0]), std::max(vgid_[v], vgid_[b0])};
+  if (!near_touched_only) {
+    best_[v] = kNone;
+    best_cost_[v] = 0.0;
+  }
   gather_faces(v, s.faces);
   fan_neighbors(v, s.faces, s.others);
   s.options.clear();
   for (uint32_t w : s.others) {
-    if (vflag_[w] & kLocked) continue;
-    const Quadric q = quadric_[v] + quadric_[w];
+    if ((vflag_[w] & kLocked) || (near_touched_only && !(dirty_[w] & kTouched))) continue;
     const Vec3 p = edge_position(v, w);
-    const double cost = quadric_error(q, p);
+    const double cost = quadric_error(quadric_[v] + quadric_[w], p);
     if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) continue;
-    s.options.push_back({{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])}, w, p});
+    const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
+    if (key < bound) s.options.push_back({key, w, p});
   }
   std::sort(s.options.begin(), s.options.end(),
             [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
@@ -382,38 +395,6 @@ void PatchDecimator::fan_neighbors(uint32_t v, const std::vector<uint32_t>& face
     const auto& t = fv_[f];
     const uint32_t prev = t[0] == v ? t[2] : (t[1] == v ? t[0] : t[1]);
     if (std::find(out.begin(), out.begin() + n, prev) == out.begin() + n) out.push_back(prev);
-  }
-}
-
-void PatchDecimator::refresh_best_near_touched(uint32_t v, Scratch& s) {
-  // v's own faces and edge costs are unchanged; only edges to touched neighbours can
-  // have changed validity. The cached best stays unless one of them is now valid and
-  // smaller (or the cached best itself leads to a touched vertex).
-  const uint32_t b0 = best_[v];
-  if (vflag_[v] & (kDead | kLocked)) return;
-  if (b0 != kNone && (dirty_[b0] & kTouched)) return refresh_best(v, s);
-  const EdgeKey k0 = b0 == kNone
-                         ? EdgeKey{std::numeric_limits<double>::infinity(), 0, 0}
-                         : EdgeKey{best_cost_[v], std::min(vgid_[v], vgid_[b0]), std::max(vgid_[v], vgid_[b0])};
-  gather_faces(v, s.faces);
-  fan_neighbors(v, s.faces, s.others);
-  s.options.clear();
-  for (uint32_t w : s.others) {
-    if (!(dirty_[w] & kTouched) || (vflag_[w] & kLocked)) continue;
-    const Vec3 p = edge_position(v, w);
-    const double cost = quadric_error(quadric_[v] + quadric_[w], p);
-    if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) continue;
-    const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
-    if (key < k0) s.options.push_back({key, w, p});
-  }
-  std::sort(s.options.begin(), s.options.end(),
-            [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
-  for (const auto& o : s.options) {
-    if (collapse_valid(v, o.other, o.position, s)) {
-      best_[v] = o.other;
-      best_cost_[v] = o.key.cost;
-      return;
-    }
   }
 }
 
@@ -501,10 +482,7 @@ void PatchDecimator::prepare_round() {
   });
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
-    if (dirty_[v] & kTouched)
-      refresh_best(v, scratch.local());
-    else
-      refresh_best_near_touched(v, scratch.local());
+    refresh_best(v, scratch.local(), !(dirty_[v] & kTouched));
   }, 64);
   for (uint32_t v : dirty_list) dirty_[v] = 0;
   parallel_over(nv, [&](size_t v) {

@@ -152,8 +152,7 @@ class PatchDecimator {
   void lock_nonmanifold_vertices();
   void compute_quadrics();
   void compact_storage();
-  void refresh_best(uint32_t v, Scratch& s);
-  void refresh_best_near_touched(uint32_t v, Scratch& s);
+  void refresh_best(uint32_t v, Scratch& s, bool near_touched_only);
   void update_border(uint32_t v, Scratch& s);
   void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces, std::vector<uint32_t>& out) const;
   bool collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const;

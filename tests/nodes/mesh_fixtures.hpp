@@ -1,7 +1,10 @@
 #pragma once
 // Small in-memory meshes and topology checks for the decimator tests.
 #include <algorithm>
+#include <gtest/gtest.h>
+
 #include <array>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <map>
@@ -132,6 +135,16 @@ uint64_t count_flipped(const std::vector<Point>& points, const std::vector<Trian
     if (n[0] * o[0] + n[1] * o[1] + n[2] * o[2] <= 0) ++flipped;
   }
   return flipped;
+}
+
+// Same triangles and bit-identical positions.
+inline void expect_identical(const std::vector<Point>& a_points, const std::vector<Triangle>& a_tris,
+                             const std::vector<Point>& b_points, const std::vector<Triangle>& b_tris) {
+  ASSERT_EQ(a_tris, b_tris);
+  ASSERT_EQ(a_points.size(), b_points.size());
+  for (size_t i = 0; i < a_points.size(); ++i)
+    for (int k = 0; k < 3; ++k)
+      ASSERT_EQ(std::bit_cast<uint64_t>(a_points[i][k]), std::bit_cast<uint64_t>(b_points[i][k]));
 }
 
 }  // namespace qemflow::testing
