@@ -97,13 +97,15 @@ LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesyst
 
 // Streams the given frames of `record_size` records through the I/O thread (a stream
 // pass): `transform(header, records, lease)` runs on compute threads concurrently,
-// then `sink` (optional) one at a time. `records` holds header.count decoded records;
+// then `sink` (optional) one at a time, in any order (in frame order, both one at a
+// time, when `ordered`). `records` holds header.count decoded records;
 // each item's lease covers the encoded frame, the records, and `out_record_size`
 // bytes per record for what transform makes of them.
 using FrameUse = std::function<void(const FrameHeader&, Bytes& records, Lease& lease)>;
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size,
-                    const FrameUse& transform, const FrameUse& sink, uint32_t out_record_size);
+                    const FrameUse& transform, const FrameUse& sink, uint32_t out_record_size,
+                    bool ordered = false);
 
 // Loads vertices [window * store.window, +store.window) into `out` (resident or not).
 void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& store, uint64_t window,

@@ -669,7 +669,7 @@ BlockGrid BlockGrid::around(const Point& min, const Point& max, uint32_t blocks)
 
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size, const FrameUse& transform,
-                    const FrameUse& sink, uint32_t out_record_size) {
+                    const FrameUse& sink, uint32_t out_record_size, bool ordered) {
   struct FrameItem {
     FrameRef ref;
     Bytes encoded, records;
@@ -681,6 +681,7 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
   pass.read_name = "read scratch";
   pass.transform_name = "decode";
   pass.owner = owner;
+  pass.ordered = ordered;
   pass.next_item_bytes = [&] {
     if (next == frames.size()) return uint64_t(1);
     const FrameRef& ref = frames[next];
