@@ -62,7 +62,7 @@ import json, sys
 c = json.load(open(sys.argv[1]))
 name, tool, ratio, faces, wall, user, sys_s, rss_kb = sys.argv[2:]
 faces = int(faces); cpu = float(user) + float(sys_s); rss = int(rss_kb) * 1024
-sym = c["distances"]["symmetric"]["relative"]
+sym = {k: (v if v is not None else float("nan")) for k, v in c["distances"]["symmetric"]["relative"].items()}
 out_faces = c["topology"]["simplified"].get("faces", c["topology"]["simplified"].get("triangles", ""))
 print(f"{name},{tool},{ratio},{faces},{out_faces},{wall},{cpu:.2f},{faces / cpu:.0f},{rss},{rss / faces:.1f},"
       f"{sym['rms']:.3e},{sym['hausdorff']:.3e},{c['flipped_faces']}")
