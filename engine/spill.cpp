@@ -14,6 +14,7 @@ namespace qemflow::engine {
 namespace {
 constexpr size_t min_page_bytes = 16 << 10;
 constexpr size_t max_page_bytes = 1 << 20;
+constexpr size_t frame_limit_bytes = 1 << 20;  // below the allocator's mmap threshold
 }  // namespace
 
 uint64_t BucketSpill::min_lease_bytes(uint32_t record_size) {
@@ -110,29 +111,54 @@ void BucketSpill::flush(const std::vector<uint32_t>& which) {
   wait_for_room(bound);
   job_.check();
 
-  std::vector<Bytes> encoded(which.size());
-  tbb::parallel_for(size_t(0), which.size(), [&](size_t k) {
-    Bucket& b = buckets_[which[k]];
+  // Each bucket's pages are cut into frames of at most max_frame_bytes (so frames stay
+  // small enough to come from the heap on both sides), all compressed in parallel.
+  struct Piece_ {
+    uint32_t bucket;
+    size_t first_page, pages;
+    uint64_t first_record, records;
+  };
+  std::vector<Piece_> jobs;
+  const size_t pages_per_frame = std::max<size_t>(frame_limit_bytes / page_bytes_, 1);
+  const uint64_t records_per_page = page_bytes_ / record_size_;
+  for (uint32_t i : which) {
+    Bucket& b = buckets_[i];
+    uint64_t first_record = b.records - b.buffered;
+    for (size_t p = 0; p < b.pages.size(); p += pages_per_frame) {
+      size_t n = std::min(pages_per_frame, b.pages.size() - p);
+      bool last = p + n == b.pages.size();
+      uint64_t records = last ? (n - 1) * records_per_page + b.used_in_last / record_size_ : n * records_per_page;
+      jobs.push_back({i, p, n, first_record, records});
+      first_record += records;
+    }
+  }
+  std::vector<Bytes> encoded(jobs.size());
+  tbb::parallel_for(size_t(0), jobs.size(), [&](size_t k) {
+    const Piece_& job = jobs[k];
+    const Bucket& b = buckets_[job.bucket];
     Span span(&job_.trace(), &job_.activity(), "compress", Span::Kind::compute);
     std::vector<Piece> pieces;
-    for (size_t p = 0; p < b.pages.size(); ++p) {
+    for (size_t p = job.first_page; p < job.first_page + job.pages; ++p) {
       pieces.push_back({b.pages[p].get(), p + 1 == b.pages.size() ? b.used_in_last : page_bytes_});
     }
-    encoded[k] = encode_frame(b.records - b.buffered, record_size_, pieces, b.buffered);
+    encoded[k] = encode_frame(job.first_record, record_size_, pieces, job.records);
     span.set_bytes(encoded[k].size());
   });
 
   uint64_t actual = 0;
-  for (size_t k = 0; k < which.size(); ++k) {
-    Bucket& b = buckets_[which[k]];
-    if (b.file == UINT32_MAX) b.file = scratch_.create_file(name_ + "-" + std::to_string(which[k]));
+  for (size_t k = 0; k < jobs.size(); ++k) {
+    Bucket& b = buckets_[jobs[k].bucket];
+    if (b.file == UINT32_MAX) b.file = scratch_.create_file(name_ + "-" + std::to_string(jobs[k].bucket));
     uint64_t size = encoded[k].size();
     actual += encoded[k].capacity();  // what the frame holds until written
-    b.frames.push_back({b.file, b.file_bytes, size, b.buffered, b.records - b.buffered});
-    max_frame_records_ = std::max<uint64_t>(max_frame_records_, b.buffered);
+    b.frames.push_back({b.file, b.file_bytes, size, jobs[k].records, jobs[k].first_record});
+    max_frame_records_ = std::max<uint64_t>(max_frame_records_, jobs[k].records);
     max_frame_bytes_ = std::max<uint64_t>(max_frame_bytes_, size);
     b.file_bytes += size;
     encoded_bytes_ += size;
+  }
+  for (uint32_t i : which) {
+    Bucket& b = buckets_[i];
     pages_held_ -= b.pages.size();
     b.pages.clear();
     b.pages.shrink_to_fit();
@@ -143,9 +169,9 @@ void BucketSpill::flush(const std::vector<uint32_t>& which) {
     std::lock_guard lock(shared_->mutex);
     shared_->in_flight -= bound - actual;
   }
-  for (size_t k = 0; k < which.size(); ++k) {
+  for (size_t k = 0; k < jobs.size(); ++k) {
     auto frame = std::make_shared<Bytes>(std::move(encoded[k]));
-    uint32_t file = buckets_[which[k]].file;
+    uint32_t file = buckets_[jobs[k].bucket].file;
     uint64_t size = frame->capacity();
     ScratchStore* scratch = &scratch_;
     auto shared = shared_;

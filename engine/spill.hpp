@@ -13,6 +13,8 @@
 //   waits for compute, so this cannot deadlock).
 // - A smaller lease means smaller pages and earlier, more frequent flushes; nothing
 //   else changes (the minimum lease is min_lease_bytes()).
+// - A frame holds at most 2 MiB of records (a bucket flushes as several frames), so
+//   frame buffers, written and read, come from the heap rather than fresh mappings.
 // - finish() flushes everything, waits for the writes and finalizes the files; then
 //   frames(bucket) lists where each bucket's records are. Each bucket is one file.
 // - Within a bucket, frames keep the order in which records were added.
