@@ -26,8 +26,8 @@ inline Point closest_point_on_triangle(const Point& p, const Point& a, const Poi
 
   const double vc = d1 * d4 - d3 * d2;
   if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
-    const double v = d1 / (d1 - d3);
-    return a + v * ab;
+    // d1 - d3 = |ab|^2 (up to rounding): zero when a and b coincide.
+    return d1 - d3 > 0.0 ? a + (d1 / (d1 - d3)) * ab : closest_point_on_segment(p, a, c);
   }
 
   const Point cp = p - c;
@@ -36,14 +36,13 @@ inline Point closest_point_on_triangle(const Point& p, const Point& a, const Poi
 
   const double vb = d5 * d2 - d1 * d6;
   if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
-    const double w = d2 / (d2 - d6);
-    return a + w * ac;
+    return d2 - d6 > 0.0 ? a + (d2 / (d2 - d6)) * ac : closest_point_on_segment(p, a, b);
   }
 
   const double va = d3 * d6 - d5 * d4;
   if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
-    const double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-    return b + w * (c - b);
+    const double bc = (d4 - d3) + (d5 - d6);
+    return bc > 0.0 ? b + ((d4 - d3) / bc) * (c - b) : closest_point_on_segment(p, a, b);
   }
 
   // Inside the face. A degenerate triangle can reach here with va+vb+vc == 0 through

@@ -33,6 +33,21 @@ TEST(ClosestPointOnTriangle, DegenerateTriangles) {
   EXPECT_DOUBLE_EQ(squared_distance_point_triangle({1, 1, 1}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}), 3.0);
 }
 
+TEST(ClosestPointOnTriangle, CoincidentCornersNeverGiveNaN) {
+  // Triangles with two equal corners (simplifiers' outputs have them): every corner
+  // order and query direction must give the distance to the segment they span.
+  const Point s0{0, 0, 0}, s1{1, 0, 0};
+  const Point queries[] = {{-1, 0, 0}, {2, 0, 0}, {0.5, 1, 0}, {0.5, -1, 2}, {0, 0, 1}, {1, 0, -1}};
+  const std::array<Point, 3> orders[] = {{s0, s0, s1}, {s0, s1, s0}, {s1, s0, s0},
+                                         {s1, s1, s0}, {s1, s0, s1}, {s0, s1, s1}};
+  for (const auto& t : orders)
+    for (const Point& p : queries) {
+      const double d2 = squared_distance_point_triangle(p, t[0], t[1], t[2]);
+      const double expected = squared_distance(p, closest_point_on_segment(p, s0, s1));
+      EXPECT_DOUBLE_EQ(d2, expected) << p[0] << "," << p[1] << "," << p[2];
+    }
+}
+
 TEST(ClosestPointOnTriangle, NoPointOfTheTriangleIsCloser) {
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> u(-1, 1), w(0, 1);
