@@ -30,6 +30,7 @@ struct SimplifyArgs {
   bool in_core = false, no_weld = false, quiet = false, double_precision = false;
   double round_fraction = nodes::SimplifyOptions{}.round_fraction;
   double candidate_fraction = nodes::SimplifyOptions{}.candidate_fraction;
+  uint32_t epoch_rounds = nodes::SimplifyOptions{}.epoch_rounds;
   nodes::DecimateParams params;
 };
 
@@ -60,6 +61,7 @@ void run_simplify(const SimplifyArgs& args) {
   options.weld = !args.no_weld;
   options.round_fraction = args.round_fraction;
   options.candidate_fraction = args.candidate_fraction;
+  options.epoch_rounds = args.epoch_rounds;
   options.params = args.params;
   nodes::SimplifyResult result =
       nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), options);
@@ -89,6 +91,8 @@ void run_simplify(const SimplifyArgs& args) {
         {"locked_vertices", st.locked_vertices},
         {"dropped_zero_area_faces", st.dropped_faces},
         {"rounds", st.rounds},
+        {"epochs", st.epochs},
+        {"epoch_rounds", args.epoch_rounds},
         {"patches", 1},
         {"budget_bytes", 0},
         {"peak_rss_bytes", peak_rss_bytes()},
@@ -106,12 +110,13 @@ void run_simplify(const SimplifyArgs& args) {
   }
   if (!args.quiet) {
     std::fprintf(stderr,
-                 "simplify: %llu -> %llu faces (target %llu), %llu rounds, %.2f s "
+                 "simplify: %llu -> %llu faces (target %llu), %llu rounds in %llu epochs, %.2f s "
                  "(read %.2f, setup %.2f, rounds %.2f, write %.2f), peak RSS %.1f MB\n",
                  static_cast<unsigned long long>(st.input_faces),
                  static_cast<unsigned long long>(st.output_faces),
                  static_cast<unsigned long long>(st.target_faces),
-                 static_cast<unsigned long long>(st.rounds), seconds_total, seconds_read,
+                 static_cast<unsigned long long>(st.rounds),
+                 static_cast<unsigned long long>(st.epochs), seconds_total, seconds_read,
                  st.seconds_setup, st.seconds_rounds, seconds_write, peak_rss_bytes() / 1e6);
   }
 }
@@ -139,6 +144,11 @@ void add_simplify_command(CLI::App& root, Run& run) {
   cmd->add_option("--candidate-fraction", args->candidate_fraction,
                   "most of the round's candidates (by faces removed) a non-final round may collapse")
       ->capture_default_str();
+  cmd->add_option("--epoch-rounds", args->epoch_rounds,
+                  "rounds per global cut decision (an epoch; the out-of-core pipeline makes one "
+                  "pass over the patches per epoch)")
+      ->capture_default_str()
+      ->check(CLI::Range(1u, 64u));
   cmd->add_option("--min-normal-cos", args->params.min_normal_cos,
                   "tuning: smallest allowed cosine between a face's normals before and after a collapse")
       ->capture_default_str();

@@ -36,6 +36,38 @@ RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_
   return plan;
 }
 
+EpochPlan plan_epoch(const RoundSummary& total, uint64_t faces, uint64_t target_faces,
+                     bool relaxed, const EpochOptions& options) {
+  EpochPlan plan;
+  if (faces <= target_faces) return plan;
+  if (total.candidate_faces == 0) {
+    if (!relaxed) plan.kind = EpochPlan::Kind::relax;
+    return plan;
+  }
+  const RoundPlan round = plan_round(total, faces, target_faces, options.round_fraction,
+                                     options.candidate_fraction);
+  const uint64_t needed = faces - target_faces;
+  if (round.kind == RoundPlan::Kind::exact_cut) {
+    plan.kind = EpochPlan::Kind::exact_cut;
+    plan.needed = needed;
+    return plan;
+  }
+  plan.kind = EpochPlan::Kind::bin_cut;
+  plan.cut = round.cut;
+  uint64_t first_round = 0;
+  for (size_t bin = 0; bin <= cost_bin(round.cut.key.cost); ++bin) first_round += total.faces_per_bin[bin];
+  const uint64_t rounds = std::max<uint32_t>(1, options.epoch_rounds);
+  plan.rounds = rounds * 2 * first_round >= needed ? 1 : static_cast<uint32_t>(rounds);
+  return plan;
+}
+
+DecimateParams relaxed_params(const DecimateParams& params) {
+  DecimateParams relaxed = params;
+  relaxed.min_normal_cos = std::min(relaxed.min_normal_cos, 0.0);
+  relaxed.min_face_quality = std::min(relaxed.min_face_quality, 1e-9);
+  return relaxed;
+}
+
 std::optional<RoundCut> exact_cut(std::span<const std::span<const Candidate>> lists,
                                   uint64_t needed) {
   std::vector<size_t> at(lists.size(), 0);

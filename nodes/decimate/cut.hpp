@@ -10,6 +10,17 @@
 // When the remaining excess fits in one round, the cut is exact instead: candidates
 // in the global total order, as long a prefix as removes no more than needed
 // (exact_cut merges the patches' sorted candidate lists).
+//
+// Epochs: the global decision is taken once per epoch (plan_epoch, from the summary at
+// the epoch's start) and reused by the epoch's rounds, so an out-of-core run needs one
+// pass over the patches per epoch, not two per round. An epoch is either
+//   stop, relax (no candidate anywhere: relax the guards once, plan again),
+//   exact (one round with the exact_cut of the owned candidate lists), or
+//   bin (`rounds` rounds, each: prepare_round, apply_cut(cut) with the same cut).
+// In the bulk phase rounds = epoch_rounds; when epoch_rounds * 2 * (faces the cut
+// removes in its first round) >= faces still to remove, the epoch is a single round
+// (END GAME), so the exact target is still hit: later rounds' removals are not known
+// in advance.
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -27,6 +38,28 @@ struct RoundPlan {
 
 RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_faces,
                      double round_fraction, double candidate_fraction = 1.0);
+
+struct EpochOptions {
+  double round_fraction = 0.1;      // most faces a round may remove
+  double candidate_fraction = 0.5;  // most of the candidates' faces a round may remove
+  uint32_t epoch_rounds = 1;        // rounds per epoch in the bulk phase (E)
+};
+
+struct EpochPlan {
+  enum class Kind { stop, relax, bin_cut, exact_cut } kind = Kind::stop;
+  RoundCut cut;          // bin_cut: the cut of every round of the epoch
+  uint32_t rounds = 0;   // bin_cut: rounds in the epoch
+  uint64_t needed = 0;   // exact_cut: faces still to remove
+};
+
+// `total`: the summed summaries of the epoch's first round; `faces`: the global face
+// count; `relaxed`: the guards were relaxed already (relax is offered once).
+EpochPlan plan_epoch(const RoundSummary& total, uint64_t faces, uint64_t target_faces,
+                     bool relaxed, const EpochOptions& options);
+
+// The relaxed geometric guards (normals may turn up to 90 degrees, faces may get thin
+// but not degenerate) used once no candidate is left above the target.
+DecimateParams relaxed_params(const DecimateParams& params);
 
 // The cut removing as many faces as possible but no more than `needed`, taking
 // candidates in key order from the patches' sorted lists; nullopt when none fits.

@@ -82,6 +82,7 @@ void RoundSummary::add(const RoundSummary& other) {
   for (size_t i = 0; i < kCostBins; ++i) faces_per_bin[i] += other.faces_per_bin[i];
   candidate_faces += other.candidate_faces;
   candidates += other.candidates;
+  inexact_candidates += other.inexact_candidates;
 }
 
 struct PatchDecimator::Scratch {
@@ -97,17 +98,28 @@ struct PatchDecimator::Scratch {
 
 PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : params_(params) {
   const size_t nv = in.positions.size();
-  if (in.vertex_gids.size() != nv || in.face_gids.size() != in.faces.size())
+  auto optional_size_ok = [](size_t size, size_t n) { return size == 0 || size == n; };
+  if (in.vertex_gids.size() != nv || in.face_gids.size() != in.faces.size() ||
+      !optional_size_ok(in.incomplete.size(), nv) || !optional_size_ok(in.owned_vertex.size(), nv) ||
+      !optional_size_ok(in.locked.size(), nv) || !optional_size_ok(in.quadrics.size(), nv) ||
+      !optional_size_ok(in.owned_face.size(), in.faces.size()))
     throw std::invalid_argument("PatchDecimator: array sizes disagree");
   if (nv >= kNone || in.faces.size() >= kNone / 3)
     throw std::invalid_argument("PatchDecimator: patch too large for 32-bit local ids");
   pos_ = std::move(in.positions);
   vgid_ = std::move(in.vertex_gids);
-  vflag_.assign(nv, 0);
-  if (!in.frozen.empty())
-    for (size_t v = 0; v < nv; ++v)
-      if (in.frozen[v]) vflag_[v] |= kFrozen;
-  in.frozen = {};
+  auto nonzero = [](uint8_t x) { return x != 0; };
+  vflag_.assign(nv, kOwned);
+  for (size_t v = 0; v < in.owned_vertex.size(); ++v)
+    if (!in.owned_vertex[v]) vflag_[v] &= ~kOwned;
+  for (size_t v = 0; v < in.incomplete.size(); ++v)
+    if (in.incomplete[v]) vflag_[v] |= kUntrusted;
+  for (size_t v = 0; v < in.locked.size(); ++v)
+    if (in.locked[v]) vflag_[v] |= kLocked;
+  const bool any_incomplete = std::any_of(in.incomplete.begin(), in.incomplete.end(), nonzero);
+  if (std::all_of(in.owned_face.begin(), in.owned_face.end(), nonzero)) in.owned_face = {};
+  in.owned_vertex = {};
+  in.incomplete = {};
 
   // Faces in ascending global id: the canonical order of every per-vertex sum.
   if (!std::is_sorted(in.face_gids.begin(), in.face_gids.end())) {
@@ -117,12 +129,15 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
               [&](uint32_t a, uint32_t b) { return in.face_gids[a] < in.face_gids[b]; });
     std::vector<std::array<uint32_t, 3>> faces(order.size());
     std::vector<uint64_t> gids(order.size());
+    std::vector<uint8_t> owned(in.owned_face.empty() ? 0 : order.size());
     for (size_t i = 0; i < order.size(); ++i) {
       faces[i] = in.faces[order[i]];
       gids[i] = in.face_gids[order[i]];
+      if (!owned.empty()) owned[i] = in.owned_face[order[i]];
     }
     in.faces = std::move(faces);
     in.face_gids = std::move(gids);
+    in.owned_face = std::move(owned);
   }
   // Faces with a repeated vertex have no normal or manifold structure: pass them
   // through and lock their vertices.
@@ -136,27 +151,34 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
       }
       passthrough_.push_back(t);
       passthrough_gids_.push_back(in.face_gids[f]);
+      passthrough_owned_.push_back(in.owned_face.empty() ? 1 : in.owned_face[f]);
       for (uint32_t v : t) vflag_[v] |= kLocked;
     } else {
       in.faces[kept] = t;
       in.face_gids[kept] = in.face_gids[f];
+      if (!in.owned_face.empty()) in.owned_face[kept] = in.owned_face[f];
       ++kept;
     }
   }
   in.faces.resize(kept);
   in.face_gids.resize(kept);
+  if (!in.owned_face.empty()) in.owned_face.resize(kept);
   fv_ = std::move(in.faces);
   fgid_ = std::move(in.face_gids);
+  fowned_ = std::move(in.owned_face);
   falive_.assign(fv_.size(), 1);
   faces_alive_ = fv_.size();
 
   build_corner_chains();
-  lock_nonmanifold_vertices();
+  if (in.locked.empty()) lock_nonmanifold_vertices();
+  in.locked = {};
   if (in.quadrics.size() == nv) {
     quadric_ = std::move(in.quadrics);
   } else {
     compute_quadrics();
+    if (any_incomplete) spread_untrusted(kInitialQuadricRadius);
   }
+  for (uint8_t f : vflag_) untrusted_count_ += (f & kUntrusted) ? 1 : 0;
   best_.assign(nv, kNone);
   best_cost_.assign(nv, 0.0);
   partner_.assign(nv, kNone);
@@ -458,10 +480,12 @@ void PatchDecimator::compact_storage() {
     if (!falive_[f]) continue;
     for (int k = 0; k < 3; ++k) fv_[nf][k] = remap[fv_[f][k]];
     fgid_[nf] = fgid_[f];
+    if (!fowned_.empty()) fowned_[nf] = fowned_[f];
     ++nf;
   }
   fv_.resize(nf);
   fgid_.resize(nf);
+  if (!fowned_.empty()) fowned_.resize(nf);
   falive_.assign(nf, 1);
   for (auto& t : passthrough_)
     for (auto& v : t) v = remap[v];
@@ -494,7 +518,7 @@ void PatchDecimator::prepare_round() {
   parallel_over(nv, [&](size_t vi) {
     const uint32_t v = static_cast<uint32_t>(vi);
     const uint32_t w = partner_[v];
-    if (w == kNone || vgid_[v] > vgid_[w] || (vflag_[v] & kFrozen)) return;
+    if (w == kNone || vgid_[v] > vgid_[w]) return;
     const EdgeKey key = lme_key(v);
     Scratch& s = scratch.local();
     uint32_t shared = 0;
@@ -508,10 +532,18 @@ void PatchDecimator::prepare_round() {
         }
       }
     }
-    found.local().push_back({key, v, w, shared});
+    found.local().push_back({key, v, w, shared, (vflag_[v] & kOwned) != 0, true});
   }, 256);
   candidates_.clear();
   for (auto& list : found) candidates_.insert(candidates_.end(), list.begin(), list.end());
+  trust_dist_.clear();
+  if (untrusted_count_ > 0) {
+    // Distances now, in the mesh the round's collapses start from: they decide which
+    // candidates are exact and, in apply_cut, how far untrusted state spreads.
+    untrusted_distances(kTrustSpread, trust_dist_);
+    for (auto& c : candidates_)
+      c.exact = trust_dist_[c.keep] > kDecisionRadius && trust_dist_[c.remove] > kDecisionRadius;
+  }
   tbb::parallel_sort(candidates_.begin(), candidates_.end(),
                      [](const Candidate& x, const Candidate& y) { return x.key < y.key; });
 }
@@ -525,11 +557,64 @@ void PatchDecimator::set_params(const DecimateParams& params) {
 RoundSummary PatchDecimator::summarize() const {
   RoundSummary s;
   for (const auto& c : candidates_) {
+    if (!c.owned) continue;
+    if (!c.exact) {
+      ++s.inexact_candidates;
+      continue;
+    }
     s.faces_per_bin[cost_bin(c.key.cost)] += c.faces_removed;
     s.candidate_faces += c.faces_removed;
     ++s.candidates;
   }
   return s;
+}
+
+std::vector<Candidate> PatchDecimator::owned_candidates() const {
+  std::vector<Candidate> out;
+  for (const auto& c : candidates_)
+    if (c.owned && c.exact) out.push_back(c);
+  return out;
+}
+
+uint64_t PatchDecimator::owned_face_count() const {
+  uint64_t n = 0;
+  if (fowned_.empty()) {
+    n = faces_alive_;
+  } else {
+    for (size_t f = 0; f < fv_.size(); ++f) n += falive_[f] && fowned_[f];
+  }
+  for (uint8_t o : passthrough_owned_) n += o != 0;
+  return n;
+}
+
+void PatchDecimator::untrusted_distances(int radius, std::vector<uint8_t>& dist) const {
+  dist.assign(pos_.size(), static_cast<uint8_t>(radius + 1));
+  std::vector<uint32_t> frontier, next;
+  for (uint32_t v = 0; v < pos_.size(); ++v)
+    if ((vflag_[v] & (kUntrusted | kDead)) == kUntrusted) {
+      dist[v] = 0;
+      frontier.push_back(v);
+    }
+  for (uint8_t d = 1; d <= radius && !frontier.empty(); ++d) {
+    next.clear();
+    for (uint32_t v : frontier)
+      for (uint32_t c = head_[v]; c != kNone; c = next_[c]) {
+        if (!falive_[c / 3]) continue;
+        for (uint32_t u : fv_[c / 3])
+          if (dist[u] > d) {
+            dist[u] = d;
+            next.push_back(u);
+          }
+      }
+    frontier.swap(next);
+  }
+}
+
+void PatchDecimator::spread_untrusted(int radius) {
+  std::vector<uint8_t> dist;
+  untrusted_distances(radius, dist);
+  for (uint32_t v = 0; v < pos_.size(); ++v)
+    if (dist[v] <= radius) vflag_[v] |= kUntrusted;
 }
 
 void PatchDecimator::collapse(const Candidate& c) {
@@ -549,6 +634,7 @@ void PatchDecimator::collapse(const Candidate& c) {
   head_[r] = kNone;
   pos_[k] = p;
   quadric_[k] += quadric_[r];
+  vflag_[k] |= vflag_[r] & kUntrusted;
   vflag_[r] |= kDead;
   best_[r] = kNone;
 }
@@ -561,11 +647,24 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
     chosen.push_back(c);
   }
   candidates_.clear();
+  if (untrusted_count_ > 0) {
+    // Decisions within kDecisionRadius rings of untrusted state may be wrong, and their
+    // collapses change faces one ring further: all of that is untrusted from now on.
+    if (trust_dist_.size() != pos_.size())
+      throw std::logic_error("PatchDecimator::apply_cut without prepare_round");
+    for (uint32_t v = 0; v < pos_.size(); ++v)
+      if (trust_dist_[v] <= kTrustSpread) vflag_[v] |= kUntrusted;
+    trust_dist_.clear();
+  }
   // Candidates are >= 2 rings apart: their collapses touch disjoint faces and chains.
   parallel_over(chosen.size(), [&](size_t i) { collapse(chosen[i]); }, 64);
   uint64_t removed = 0;
   for (const auto& c : chosen) removed += c.faces_removed;
   faces_alive_ -= removed;
+  if (untrusted_count_ > 0) {
+    untrusted_count_ = 0;
+    for (uint8_t f : vflag_) untrusted_count_ += (f & (kUntrusted | kDead)) == kUntrusted;
+  }
   // Everything whose best edge may have changed lies within 2 rings of a kept vertex.
   parallel_over(chosen.size(), [&](size_t i) {
     const uint32_t k = chosen[i].keep;
@@ -597,9 +696,9 @@ PatchOutput PatchDecimator::extract() const {
   std::vector<std::pair<uint64_t, std::array<uint32_t, 3>>> faces;
   faces.reserve(faces_alive_ + passthrough_.size());
   for (size_t f = 0; f < fv_.size(); ++f)
-    if (falive_[f]) faces.push_back({fgid_[f], fv_[f]});
+    if (falive_[f] && (fowned_.empty() || fowned_[f])) faces.push_back({fgid_[f], fv_[f]});
   for (size_t i = 0; i < passthrough_.size(); ++i)
-    faces.push_back({passthrough_gids_[i], passthrough_[i]});
+    if (passthrough_owned_[i]) faces.push_back({passthrough_gids_[i], passthrough_[i]});
   tbb::parallel_sort(faces.begin(), faces.end(),
                      [](const auto& x, const auto& y) { return x.first < y.first; });
   std::vector<uint8_t> used(pos_.size(), 0);
@@ -612,11 +711,26 @@ PatchOutput PatchDecimator::extract() const {
   std::vector<uint32_t> remap(pos_.size(), kNone);
   out.positions.reserve(verts.size());
   out.vertex_gids.reserve(verts.size());
+  out.quadrics.reserve(verts.size());
+  out.locked.reserve(verts.size());
+  out.degrees.reserve(verts.size());
   for (uint32_t i = 0; i < verts.size(); ++i) {
-    remap[verts[i]] = i;
-    out.positions.push_back(pos_[verts[i]]);
-    out.vertex_gids.push_back(vgid_[verts[i]]);
+    const uint32_t v = verts[i];
+    remap[v] = i;
+    out.positions.push_back(pos_[v]);
+    out.vertex_gids.push_back(vgid_[v]);
+    out.quadrics.push_back(quadric_[v]);
+    out.locked.push_back((vflag_[v] & kLocked) ? 1 : 0);
+    uint32_t degree = 0;
+    for (uint32_t c = head_[v]; c != kNone; c = next_[c]) degree += falive_[c / 3];
+    out.degrees.push_back(degree);
+    out.untrusted_vertices += (vflag_[v] & kUntrusted) ? 1 : 0;
   }
+  // Faces with a repeated vertex count once for each distinct vertex.
+  for (const auto& t : passthrough_)
+    for (int k = 0; k < 3; ++k)
+      if (remap[t[k]] != kNone && (k == 0 || t[k] != t[0]) && (k < 2 || t[2] != t[1]))
+        ++out.degrees[remap[t[k]]];
   out.faces.reserve(faces.size());
   out.face_gids.reserve(faces.size());
   for (const auto& [gid, t] : faces) {

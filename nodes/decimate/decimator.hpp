@@ -1,41 +1,60 @@
 #pragma once
 // PatchDecimator: the local-minimal-edge (LME) round machinery of DESIGN.md §3, run on
-// one patch (in core: one patch holding the whole mesh, nothing frozen).
+// one patch (in core: one patch holding the whole mesh, everything owned and trusted).
 //
 // Contract
-// - Input: vertices (position, global id, optional frozen flag, optional initial
-//   quadric) and triangles (local vertex refs, global face id). Faces are processed in
-//   ascending global face id; vertex quadrics, when not given, are summed in that order
-//   (area-weighted face planes first, then boundary-edge planes in face order and
-//   corner order), so any patch holding a vertex's whole 1-ring computes the same bits.
+// - Input: vertices (position, global id; optional flags `incomplete`, `owned`,
+//   `locked`; optional quadric) and triangles (local vertex refs, global face id,
+//   optional `owned` flag). Faces are processed in ascending global face id; vertex
+//   quadrics, when not given, are summed in that order (area-weighted face planes
+//   first, then boundary/fold-edge planes in face order and corner order), so any patch
+//   holding a vertex's whole 1-ring computes the same bits.
 // - A round has three steps, each deterministic and independent of thread count:
 //     prepare_round()  refresh every vertex's best (cheapest valid) edge where the mesh
 //                      changed, find the LMEs and the independent set (candidates);
-//     summarize()      a small summary (integer histogram of candidate costs, weighted
-//                      by faces each would remove) that sums exactly across patches;
-//     apply_cut(cut)   collapse every owned candidate whose key <= cut.
-//   The cut comes from plan_round()/exact_cut() in cut.hpp, from summed summaries.
+//     summarize()      a small summary (integer histogram of the owned, exact
+//                      candidates' costs, weighted by faces each would remove) that
+//                      sums exactly across patches;
+//     apply_cut(cut)   collapse every candidate (owned or not) whose key <= cut.
+//   The cut comes from plan_epoch()/exact_cut() in cut.hpp, from summed summaries; the
+//   epoch schedule (one global decision per E rounds) is in cut.hpp / simplify.hpp.
 // - Total order of edges: key = (cost, smaller global id, larger global id).
 // - best(v): the smallest-key valid edge at v. LME: an edge that is best at both ends.
 //   Candidate: an LME smaller than every other LME with an endpoint within one ring
 //   of its endpoints. Candidates are then >= 2 rings apart, so their collapses touch
 //   disjoint face sets and the round's result does not depend on collapse order.
 // - Decision radius (rings around an edge's endpoints; out-of-core halos are sized
-//   from it): validity of (a,b) reads the faces of a and b (1 ring); best(v) reads the
-//   validity of all edges at v (2 rings); LME status of (a,b) reads best(a), best(b)
-//   (2 rings); candidate status reads LME status of edges with an endpoint within one
-//   ring (1 + 1 + 2 = 4 rings). kDecisionRadius = 4. Quadrics are per-vertex state
-//   carried with the vertex (initially they read the 1-ring faces and boundary edges).
+//   from it): validity of (a,b) reads the faces of a and b and their vertices'
+//   positions (1 ring); best(v) reads the validity of all edges at v (2 rings); LME
+//   status of (a,b) reads best(a), best(b) (2 rings); candidate status reads LME status
+//   of edges with an endpoint within one ring (1 + 1 + 2 = 4 rings).
+//   kDecisionRadius = 4. Quadrics are per-vertex state carried with the vertex
+//   (initially they read the vertex's own faces, fold test included).
 // - A collapse keeps the vertex with the smaller global id at the collapse position,
 //   with quadric Q_keep + Q_remove. Surviving faces keep their global ids.
-// - Frozen vertices (halo of an out-of-core patch; none in core) take part in every
-//   decision like any vertex, but a candidate is collapsed (and counted in summaries)
-//   only by the patch where its kept vertex is not frozen.
+// - Trust (out-of-core patches; in core nothing is untrusted and this costs nothing):
+//   a vertex is UNTRUSTED when its state (position, quadric, lock, incident faces)
+//   may differ from the global mesh's. Initially untrusted: `incomplete` vertices (fan
+//   not whole in the patch) and, when quadrics are computed here (no `quadrics`
+//   given), every vertex within kInitialQuadricRadius rings of them. Before a round's
+//   collapses are applied, every vertex within kTrustSpread = kDecisionRadius + 1 rings
+//   (current mesh) of an untrusted vertex becomes untrusted; the kept vertex of a
+//   collapse is untrusted if either endpoint was. A candidate is EXACT when both
+//   endpoints are more than kDecisionRadius rings from every untrusted vertex: its
+//   decision then equals the global one.
+// - Ownership: each candidate is counted (summaries, owned_candidates()) only by the
+//   patch owning its kept vertex (`PatchInput::owned_vertex`), and only when exact;
+//   an owned inexact candidate is counted in RoundSummary::inexact_candidates (the
+//   pipeline reports 'halo too small'). Every candidate of the patch is collapsed by
+//   apply_cut, owned or not, so the halo evolves like the global mesh while trusted.
+// - extract() returns the owned faces with their vertices' (gid, position, quadric,
+//   lock, degree); PatchOutput::untrusted_vertices counts output vertices that are not
+//   trusted (must be 0 for the output to be exact).
 // - Locked vertices never move: those on non-manifold edges, non-manifold (multi-fan)
-//   vertices, endpoints of inconsistently oriented edges; their faces pass through.
-//   Faces with a repeated vertex (zero area) are dropped and counted (dropped_faces());
-//   with drop_repeated_vertex_faces = false they pass through and lock their vertices.
-//   No other input face is ever dropped.
+//   vertices, endpoints of inconsistently oriented edges (computed at setup unless
+//   `locked` is given); their faces pass through. Faces with a repeated vertex (zero
+//   area) are dropped and counted (dropped_faces()); with drop_repeated_vertex_faces =
+//   false they pass through and lock their vertices. No other input face is dropped.
 // - Thread safety: a PatchDecimator is used by one caller at a time; its methods run
 //   oneTBB parallel loops internally.
 #include <array>
@@ -48,6 +67,12 @@
 namespace qemflow::nodes {
 
 inline constexpr int kDecisionRadius = 4;
+// Untrusted state spreads this many rings per round (wrong decisions within
+// kDecisionRadius rings, whose collapses change faces one ring further).
+inline constexpr int kTrustSpread = kDecisionRadius + 1;
+// Rings around an incomplete vertex whose locally computed initial quadric is not
+// trusted (the lead's conservative rule; a vertex's quadric reads only its own faces).
+inline constexpr int kInitialQuadricRadius = 2;
 
 struct DecimateParams {
   // A collapse is invalid when a face normal turns so that cos(angle) < this.
@@ -71,10 +96,13 @@ struct DecimateParams {
 struct PatchInput {
   std::vector<Vec3> positions;
   std::vector<uint64_t> vertex_gids;
-  std::vector<uint8_t> frozen;      // empty: none frozen
-  std::vector<Quadric> quadrics;    // empty: computed from this patch's faces
+  std::vector<uint8_t> incomplete;    // per vertex; empty: every fan is whole
+  std::vector<uint8_t> owned_vertex;  // per vertex; empty: all owned
+  std::vector<uint8_t> locked;        // per vertex; empty: computed from the faces
+  std::vector<Quadric> quadrics;      // per vertex; empty: computed from the faces
   std::vector<std::array<uint32_t, 3>> faces;  // local vertex refs
   std::vector<uint64_t> face_gids;
+  std::vector<uint8_t> owned_face;    // per face; empty: all owned
 };
 
 struct EdgeKey {
@@ -92,6 +120,8 @@ struct Candidate {
   EdgeKey key;
   uint32_t keep = 0, remove = 0;  // local vertex ids
   uint32_t faces_removed = 0;     // 1 (border edge) or 2
+  bool owned = true;              // the kept vertex is owned by this patch
+  bool exact = true;              // both endpoints > kDecisionRadius rings from untrusted
 };
 
 // Fixed log-scale bins of cost: the top 13 bits of the IEEE double (exponent and two
@@ -102,8 +132,9 @@ double cost_bin_upper(size_t bin);  // largest double in the bin
 
 struct RoundSummary {
   std::vector<uint64_t> faces_per_bin = std::vector<uint64_t>(kCostBins, 0);
-  uint64_t candidate_faces = 0;  // sum over owned candidates of faces they remove
+  uint64_t candidate_faces = 0;  // sum over owned exact candidates of faces they remove
   uint64_t candidates = 0;
+  uint64_t inexact_candidates = 0;  // owned but not exact: the halo is too small
   void add(const RoundSummary& other);
 };
 
@@ -114,11 +145,17 @@ struct RoundCut {
   bool single_face_only = false;
 };
 
+// The owned faces and their vertices' state (enough to rebuild a patch of the next
+// epoch: PatchInput's quadrics / locked, and degrees to tell complete fans).
 struct PatchOutput {
   std::vector<Vec3> positions;           // sorted by global id
   std::vector<uint64_t> vertex_gids;
+  std::vector<Quadric> quadrics;
+  std::vector<uint8_t> locked;
+  std::vector<uint32_t> degrees;         // alive faces around the vertex in this patch
   std::vector<std::array<uint32_t, 3>> faces;  // sorted by global face id
   std::vector<uint64_t> face_gids;
+  uint64_t untrusted_vertices = 0;       // output vertices whose state may be wrong
 };
 
 class PatchDecimator {
@@ -128,23 +165,31 @@ class PatchDecimator {
   void prepare_round();
   RoundSummary summarize() const;
   // Owned candidates of the prepared round, sorted by key.
+  // Every candidate of the prepared round (owned or not, exact or not), sorted by key.
   std::span<const Candidate> candidates() const { return candidates_; }
+  // The owned, exact candidates sorted by key: this patch's list for exact_cut().
+  std::vector<Candidate> owned_candidates() const;
   // Returns the number of faces removed.
   uint64_t apply_cut(const RoundCut& cut);
 
   // New validity parameters for the following rounds (every vertex is re-evaluated).
-  // run_rounds uses it to relax the geometric guards once no candidate is left.
+  // run_epochs uses it to relax the geometric guards once no candidate is left.
   void set_params(const DecimateParams& params);
   const DecimateParams& params() const { return params_; }
 
   uint64_t face_count() const { return faces_alive_ + passthrough_gids_.size(); }
+  uint64_t owned_face_count() const;
+  bool trusted(uint32_t v) const { return !(vflag_[v] & kUntrusted); }
+  uint64_t untrusted_count() const { return untrusted_count_; }
+  size_t vertex_count() const { return pos_.size(); }
+  uint64_t vertex_gid(uint32_t v) const { return vgid_[v]; }
   uint64_t locked_vertices() const { return locked_count_; }
   uint64_t dropped_faces() const { return dropped_faces_; }
   PatchOutput extract() const;
 
  private:
   struct Scratch;
-  enum : uint8_t { kDead = 1, kLocked = 2, kFrozen = 4, kBorder = 8 };
+  enum : uint8_t { kDead = 1, kLocked = 2, kUntrusted = 4, kBorder = 8, kOwned = 16 };
   // dirty_ bits: the vertex's faces changed (full refresh) / a neighbour's did.
   enum : uint8_t { kTouched = 2, kNearTouched = 1 };
 
@@ -161,6 +206,9 @@ class PatchDecimator {
   EdgeKey lme_key(uint32_t v) const;
   void collapse(const Candidate& c);
   void compact_chain(uint32_t v);
+  // Rings (capped at `radius` + 1) from the untrusted set, in the current mesh.
+  void untrusted_distances(int radius, std::vector<uint8_t>& dist) const;
+  void spread_untrusted(int radius);
 
   DecimateParams params_;
   // vertices
@@ -184,6 +232,10 @@ class PatchDecimator {
   std::vector<uint64_t> passthrough_gids_;
   uint64_t locked_count_ = 0;
   uint64_t dropped_faces_ = 0;
+  uint64_t untrusted_count_ = 0;
+  std::vector<uint8_t> fowned_;      // per face, empty when all owned
+  std::vector<uint8_t> passthrough_owned_;
+  std::vector<uint8_t> trust_dist_;  // round scratch: rings to the untrusted set
 
   std::vector<Candidate> candidates_;
 };

@@ -11,9 +11,6 @@
 namespace qemflow::nodes {
 namespace {
 
-constexpr double kRelaxedNormalCos = 0.0;
-constexpr double kRelaxedFaceQuality = 1e-9;
-
 double seconds_since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
@@ -26,42 +23,48 @@ uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options)
   throw std::invalid_argument("simplify: one of target_faces or ratio is required");
 }
 
-uint64_t run_rounds(PatchDecimator& decimator, uint64_t target_faces, double round_fraction,
-                    double candidate_fraction,
-                    const std::function<void(uint64_t, uint64_t)>& on_round) {
-  uint64_t rounds = 0;
+EpochOptions epoch_options(const SimplifyOptions& options) {
+  return {options.round_fraction, options.candidate_fraction, options.epoch_rounds};
+}
+
+EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
+                         const EpochOptions& options,
+                         const std::function<void(uint64_t, uint64_t)>& on_round) {
+  EpochRunStats st;
+  bool relaxed = !(decimator.params().min_normal_cos > 0.0);
+  auto round = [&](const RoundCut& cut) {
+    decimator.apply_cut(cut);
+    ++st.rounds;
+    if (on_round) on_round(st.rounds, decimator.face_count());
+  };
   while (decimator.face_count() > target_faces) {
     decimator.prepare_round();
-    const RoundSummary summary = decimator.summarize();
-    const RoundPlan plan =
-        plan_round(summary, decimator.face_count(), target_faces, round_fraction,
-                   candidate_fraction);
-    RoundCut cut;
-    if (plan.kind == RoundPlan::Kind::stop) {
-      // No valid candidate left above the target: relax the geometric guards once
-      // (normals may turn up to 90 degrees, faces may get thin but not degenerate).
-      // A global decision (every patch sees zero candidates), so partition-invariant.
-      DecimateParams relaxed = decimator.params();
-      if (summary.candidate_faces != 0 || relaxed.min_normal_cos <= kRelaxedNormalCos) break;
-      relaxed.min_normal_cos = kRelaxedNormalCos;
-      relaxed.min_face_quality = std::min(relaxed.min_face_quality, kRelaxedFaceQuality);
-      decimator.set_params(relaxed);
+    const EpochPlan plan =
+        plan_epoch(decimator.summarize(), decimator.face_count(), target_faces, relaxed, options);
+    if (plan.kind == EpochPlan::Kind::stop) break;
+    ++st.epochs;
+    if (plan.kind == EpochPlan::Kind::relax) {
+      // A global decision (the summed candidate count is zero), so partition-invariant.
+      decimator.set_params(relaxed_params(decimator.params()));
+      relaxed = true;
       continue;
     }
-    if (plan.kind == RoundPlan::Kind::bin_cut) {
-      cut = plan.cut;
-    } else {
-      const std::span<const Candidate> lists[] = {decimator.candidates()};
-      const auto exact = exact_cut(lists, plan.needed);
-      if (!exact) break;
-      cut = *exact;
+    if (plan.kind == EpochPlan::Kind::exact_cut) {
+      const std::vector<Candidate> owned = decimator.owned_candidates();
+      const std::span<const Candidate> lists[] = {owned};
+      const auto cut = exact_cut(lists, plan.needed);
+      if (!cut) break;
+      round(*cut);
+      continue;
     }
-    const uint64_t removed = decimator.apply_cut(cut);
-    ++rounds;
-    if (on_round) on_round(rounds, decimator.face_count());
-    if (removed == 0) break;
+    // The epoch's rounds run blind, as every out-of-core patch does: no early exit.
+    round(plan.cut);
+    for (uint32_t r = 1; r < plan.rounds; ++r) {
+      decimator.prepare_round();
+      round(plan.cut);
+    }
   }
-  return rounds;
+  return st;
 }
 
 SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangle>&& triangles,
@@ -115,8 +118,10 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
   st.seconds_setup = seconds_since(t0);
 
   const auto t1 = std::chrono::steady_clock::now();
-  st.rounds = run_rounds(decimator, st.target_faces, options.round_fraction,
-                         options.candidate_fraction, options.on_round);
+  const EpochRunStats run =
+      run_epochs(decimator, st.target_faces, epoch_options(options), options.on_round);
+  st.rounds = run.rounds;
+  st.epochs = run.epochs;
   st.seconds_rounds = seconds_since(t1);
 
   const auto t2 = std::chrono::steady_clock::now();

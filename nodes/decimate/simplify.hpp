@@ -1,7 +1,8 @@
 #pragma once
 // simplify_in_core: the reference run of the decimator (DESIGN.md §3) on a whole mesh
-// held in memory - weld, one PatchDecimator with nothing frozen, LME rounds with the
-// global cut of cut.hpp until the target face count is reached.
+// held in memory - weld, one PatchDecimator (everything owned and trusted), LME rounds
+// in epochs with the global cut of cut.hpp (plan_epoch) until the target face count is
+// reached. The out-of-core pipeline runs the same epoch schedule on patches.
 //
 // Contract: deterministic - the output (vertices sorted by global id, faces by global
 // face id, positions as computed) is identical for any oneTBB thread count. The target
@@ -26,6 +27,7 @@ struct SimplifyOptions {
   bool weld = true;
   double round_fraction = 0.1;  // most faces a non-final round may remove
   double candidate_fraction = 0.5;  // most of the candidates' faces a round may remove
+  uint32_t epoch_rounds = EpochOptions{}.epoch_rounds;  // rounds per global decision (E)
   DecimateParams params;
   // Called after each round with (round, faces now); may be empty.
   std::function<void(uint64_t, uint64_t)> on_round;
@@ -39,6 +41,7 @@ struct SimplifyStats {
   uint64_t target_faces = 0;
   uint64_t output_vertices = 0, output_faces = 0;
   uint64_t rounds = 0;
+  uint64_t epochs = 0;
   double seconds_setup = 0, seconds_rounds = 0, seconds_extract = 0;
 };
 
@@ -56,9 +59,16 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
 // The target face count the options ask for.
 uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options);
 
-// The round loop on one patch holding the whole mesh (exposed for tests/benchmarks).
-uint64_t run_rounds(PatchDecimator& decimator, uint64_t target_faces, double round_fraction,
-                    double candidate_fraction,
-                    const std::function<void(uint64_t, uint64_t)>& on_round = {});
+EpochOptions epoch_options(const SimplifyOptions& options);
+
+struct EpochRunStats {
+  uint64_t rounds = 0, epochs = 0;
+};
+
+// The epoch loop (cut.hpp) on one patch holding the whole mesh: the in-core reference
+// of the out-of-core schedule (exposed for tests/benchmarks). on_round(round, faces).
+EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
+                         const EpochOptions& options,
+                         const std::function<void(uint64_t, uint64_t)>& on_round = {});
 
 }  // namespace qemflow::nodes

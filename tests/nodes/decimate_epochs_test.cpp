@@ -1,0 +1,385 @@
+// The epoch form of G and trust tracking (nodes/decimate/README.md): the in-core run
+// with E rounds per epoch is deterministic and exact; and a two-patch simulation of
+// the out-of-core schedule (owned faces + a k-ring halo per patch, one global plan per
+// epoch from summed summaries, state exchanged through the owned outputs at each
+// epoch's end) gives the in-core result bit for bit.
+#include <gtest/gtest.h>
+#include <tbb/global_control.h>
+
+#include <algorithm>
+#include <bit>
+#include <map>
+#include <set>
+
+#include "nodes/decimate/simplify.hpp"
+#include "tests/nodes/mesh_fixtures.hpp"
+
+namespace qemflow::nodes {
+namespace {
+
+using qemflow::testing::Mesh;
+
+PatchInput whole_patch(const Mesh& m) {
+  PatchInput in;
+  in.positions.assign(m.points.begin(), m.points.end());
+  in.vertex_gids.resize(m.points.size());
+  for (size_t i = 0; i < m.points.size(); ++i) in.vertex_gids[i] = i;
+  for (size_t f = 0; f < m.triangles.size(); ++f) {
+    const auto& t = m.triangles[f];
+    in.faces.push_back({uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])});
+    in.face_gids.push_back(f);
+  }
+  return in;
+}
+
+// A mesh keyed by global ids: what the out-of-core pipeline holds between epochs.
+struct GlobalMesh {
+  std::map<uint64_t, std::array<uint64_t, 3>> faces;  // face gid -> vertex gids
+  struct Vertex {
+    Vec3 position;
+    Quadric quadric;
+    uint8_t locked = 0;
+  };
+  std::map<uint64_t, Vertex> vertices;
+};
+
+GlobalMesh in_core_result(const Mesh& m, uint64_t target, const EpochOptions& options,
+                          EpochRunStats* stats = nullptr) {
+  PatchDecimator d(whole_patch(m), {});
+  const EpochRunStats st = run_epochs(d, target, options);
+  if (stats) *stats = st;
+  const PatchOutput out = d.extract();
+  GlobalMesh g;
+  for (size_t i = 0; i < out.faces.size(); ++i)
+    g.faces[out.face_gids[i]] = {out.vertex_gids[out.faces[i][0]], out.vertex_gids[out.faces[i][1]],
+                                 out.vertex_gids[out.faces[i][2]]};
+  for (size_t i = 0; i < out.positions.size(); ++i)
+    g.vertices[out.vertex_gids[i]] = {out.positions[i], out.quadrics[i], out.locked[i]};
+  return g;
+}
+
+bool same_bits(const Vec3& a, const Vec3& b) {
+  for (int k = 0; k < 3; ++k)
+    if (std::bit_cast<uint64_t>(a[k]) != std::bit_cast<uint64_t>(b[k])) return false;
+  return true;
+}
+bool same_bits(const Quadric& a, const Quadric& b) {
+  for (int k = 0; k < 10; ++k)
+    if (std::bit_cast<uint64_t>(a.q[k]) != std::bit_cast<uint64_t>(b.q[k])) return false;
+  return true;
+}
+
+void expect_same_mesh(const GlobalMesh& a, const GlobalMesh& b) {
+  ASSERT_EQ(a.faces, b.faces);
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  for (const auto& [gid, v] : a.vertices) {
+    const auto it = b.vertices.find(gid);
+    ASSERT_NE(it, b.vertices.end()) << gid;
+    ASSERT_TRUE(same_bits(v.position, it->second.position)) << "vertex " << gid;
+  }
+}
+
+// The out-of-core schedule with two patches split by the plane x = split (faces owned
+// by their ORIGINAL barycenter side), each with a `halo`-ring halo grown by BFS over
+// the current global mesh. A patch that reports 'halo too small' (an owned inexact
+// candidate, or an untrusted vertex on an owned face) makes the epoch restart from
+// the saved state with a deeper halo, as the pipeline would. Each epoch first tries a
+// halo 2 rings shallower than the last one that worked, so halos stay as tight as the
+// trust rule allows: a trust rule that trusted too much would then show up as a
+// difference from the in-core result.
+struct Simulation {
+  const Mesh& mesh;
+  uint64_t target;
+  EpochOptions options;
+  int halo;
+  double split = 0.0;
+  int max_halo_used = 0, halo_growths = 0;
+  uint64_t epochs = 0;
+
+  std::vector<int> original_side;
+
+  PatchInput patch(const GlobalMesh& g, int side, int rings, bool first_epoch) const {
+    // Vertex -> faces of the current global mesh.
+    std::map<uint64_t, std::vector<uint64_t>> fan;
+    for (const auto& [f, t] : g.faces)
+      for (uint64_t v : t) fan[v].push_back(f);
+    std::set<uint64_t> faces, verts;
+    for (const auto& [f, t] : g.faces)
+      if (original_side[f] == side) faces.insert(f);
+    for (uint64_t f : faces)
+      for (uint64_t v : g.faces.at(f)) verts.insert(v);
+    for (int r = 0; r < rings; ++r) {
+      for (uint64_t v : verts)
+        for (uint64_t f : fan[v]) faces.insert(f);
+      for (uint64_t f : faces)
+        for (uint64_t v : g.faces.at(f)) verts.insert(v);
+    }
+    PatchInput in;
+    std::map<uint64_t, uint32_t> local;
+    for (uint64_t v : verts) {
+      local[v] = uint32_t(in.vertex_gids.size());
+      in.vertex_gids.push_back(v);
+      const auto& state = g.vertices.at(v);
+      in.positions.push_back(state.position);
+      if (!first_epoch) {
+        in.quadrics.push_back(state.quadric);
+        in.locked.push_back(state.locked);
+      }
+      const auto& vf = fan[v];
+      const size_t inside = size_t(std::count_if(vf.begin(), vf.end(),
+                                                 [&](uint64_t f) { return faces.count(f) != 0; }));
+      in.incomplete.push_back(inside != vf.size());
+      // Vertex owner: the owner of its smallest-id face.
+      in.owned_vertex.push_back(original_side[*std::min_element(vf.begin(), vf.end())] == side);
+    }
+    for (uint64_t f : faces) {
+      const auto& t = g.faces.at(f);
+      in.faces.push_back({local[t[0]], local[t[1]], local[t[2]]});
+      in.face_gids.push_back(f);
+      in.owned_face.push_back(original_side[f] == side);
+    }
+    return in;
+  }
+
+  // One epoch on both patches; false when a patch reports that its halo is too small.
+  bool epoch(GlobalMesh& g, bool& relaxed, DecimateParams& params, bool first_epoch, int rings,
+             bool& done) {
+    std::vector<PatchDecimator> patches;
+    for (int side = 0; side < 2; ++side) patches.emplace_back(patch(g, side, rings, first_epoch), params);
+    RoundSummary total;
+    for (auto& p : patches) {
+      p.prepare_round();
+      total.add(p.summarize());
+    }
+    if (total.inexact_candidates != 0) return false;
+    const EpochPlan plan = plan_epoch(total, g.faces.size(), target, relaxed, options);
+    done = false;
+    if (plan.kind == EpochPlan::Kind::stop) {
+      done = true;
+      return true;
+    }
+    if (plan.kind == EpochPlan::Kind::relax) {
+      params = relaxed_params(params);
+      relaxed = true;
+      return true;
+    }
+    if (plan.kind == EpochPlan::Kind::exact_cut) {
+      std::vector<std::vector<Candidate>> owned;
+      for (auto& p : patches) owned.push_back(p.owned_candidates());
+      const std::vector<std::span<const Candidate>> lists(owned.begin(), owned.end());
+      const auto cut = exact_cut(lists, plan.needed);
+      if (!cut) {
+        done = true;
+        return true;
+      }
+      for (auto& p : patches) p.apply_cut(*cut);
+    } else {
+      for (auto& p : patches) p.apply_cut(plan.cut);
+      for (uint32_t r = 1; r < plan.rounds; ++r)
+        for (auto& p : patches) {
+          p.prepare_round();
+          p.apply_cut(plan.cut);
+        }
+    }
+    // Exchange: the next state is the union of the owned outputs.
+    GlobalMesh next;
+    for (auto& p : patches) {
+      const PatchOutput out = p.extract();
+      if (out.untrusted_vertices != 0) return false;
+      for (size_t i = 0; i < out.faces.size(); ++i) {
+        const std::array<uint64_t, 3> t = {out.vertex_gids[out.faces[i][0]],
+                                           out.vertex_gids[out.faces[i][1]],
+                                           out.vertex_gids[out.faces[i][2]]};
+        EXPECT_TRUE(next.faces.emplace(out.face_gids[i], t).second) << "face owned twice";
+      }
+      for (size_t i = 0; i < out.positions.size(); ++i) {
+        const GlobalMesh::Vertex v{out.positions[i], out.quadrics[i], out.locked[i]};
+        const auto [it, inserted] = next.vertices.emplace(out.vertex_gids[i], v);
+        if (!inserted) {  // shared by both patches' owned faces: the same state
+          EXPECT_TRUE(same_bits(it->second.position, v.position));
+          EXPECT_TRUE(same_bits(it->second.quadric, v.quadric));
+          EXPECT_EQ(it->second.locked, v.locked);
+        }
+      }
+      // Degrees of trusted vertices are the global ones (checked below).
+      for (size_t i = 0; i < out.degrees.size(); ++i) degree_seen[out.vertex_gids[i]].insert(out.degrees[i]);
+    }
+    std::map<uint64_t, uint32_t> degree;
+    for (const auto& [f, t] : next.faces)
+      for (uint64_t v : t) ++degree[v];
+    for (const auto& [v, seen] : degree_seen) {
+      EXPECT_EQ(seen.size(), 1u) << v;
+      EXPECT_EQ(*seen.begin(), degree[v]) << v;
+    }
+    degree_seen.clear();
+    g = std::move(next);
+    return true;
+  }
+  std::map<uint64_t, std::set<uint32_t>> degree_seen;
+
+  GlobalMesh run() {
+    GlobalMesh g;
+    for (size_t f = 0; f < mesh.triangles.size(); ++f) {
+      const auto& t = mesh.triangles[f];
+      g.faces[f] = {t[0], t[1], t[2]};
+      const double x = (mesh.points[t[0]][0] + mesh.points[t[1]][0] + mesh.points[t[2]][0]) / 3;
+      original_side.push_back(x < split ? 0 : 1);
+    }
+    for (size_t v = 0; v < mesh.points.size(); ++v) g.vertices[v] = {mesh.points[v], {}, 0};
+    bool relaxed = false, first = true, done = false;
+    DecimateParams params;
+    int rings = halo;
+    while (g.faces.size() > target && !done) {
+      rings = std::max(1, rings - 2);
+      for (;;) {
+        GlobalMesh attempt = g;
+        bool attempt_relaxed = relaxed;
+        DecimateParams attempt_params = params;
+        if (epoch(attempt, attempt_relaxed, attempt_params, first, rings, done)) {
+          g = std::move(attempt);
+          relaxed = attempt_relaxed;
+          params = attempt_params;
+          break;
+        }
+        degree_seen.clear();
+        rings += 1;
+        ++halo_growths;
+        if (rings > 200) {
+          ADD_FAILURE() << "halo keeps growing";
+          return g;
+        }
+      }
+      max_halo_used = std::max(max_halo_used, rings);
+      first = false;
+      ++epochs;
+    }
+    return g;
+  }
+};
+
+struct Case {
+  const char* name;
+  Mesh mesh;
+  uint64_t target;
+  bool closed;  // closed meshes keep an even face count
+  double split;
+};
+
+std::vector<Case> cases() {
+  return {{"noisy sphere", qemflow::testing::icosphere(5, 0.02, 3), 200, true, 0.05},  // 20480 faces
+          {"noisy grid", qemflow::testing::grid(70, 0.003, 5), 333, false, 0.43}};   // 9800 faces
+}
+
+TEST(DecimateEpochs, InCoreRunIsDeterministicAndExactForSeveralEpochLengths) {
+  for (uint32_t e : {1u, 2u, 3u, 4u, 6u}) {
+    EpochOptions options;
+    options.epoch_rounds = e;
+    for (const auto& c : cases()) {
+      for (uint64_t target : {c.target, c.target * 5 + 1, uint64_t(c.mesh.triangles.size() / 2)}) {
+        const uint64_t expected = (c.closed && target % 2) ? target + 1 : target;
+        EpochRunStats st1, st2;
+        GlobalMesh a, b;
+        {
+          tbb::global_control limit(tbb::global_control::max_allowed_parallelism, 1);
+          a = in_core_result(c.mesh, target, options, &st1);
+        }
+        {
+          tbb::global_control limit(tbb::global_control::max_allowed_parallelism, 2);
+          b = in_core_result(c.mesh, target, options, &st2);
+        }
+        EXPECT_EQ(a.faces.size(), expected) << c.name << " E=" << e << " target " << target;
+        expect_same_mesh(a, b);
+        EXPECT_EQ(st1.rounds, st2.rounds);
+        if (e > 1 && target == c.target) EXPECT_LT(st1.epochs, st1.rounds) << c.name << " E=" << e;
+      }
+    }
+  }
+}
+
+TEST(DecimateEpochs, EpochOfOneRoundIsTheRoundByRoundSchedule) {
+  // E = 1 takes the global decision every round: fewer epochs than rounds is impossible.
+  EpochOptions options;
+  options.epoch_rounds = 1;
+  EpochRunStats st;
+  in_core_result(qemflow::testing::icosphere(4, 0.01), 300, options, &st);
+  EXPECT_GE(st.epochs, st.rounds);
+}
+
+TEST(DecimateEpochs, PlanEpochEndGameIsASingleRound) {
+  RoundSummary s;
+  s.faces_per_bin[cost_bin(1.0)] = 100;
+  s.faces_per_bin[cost_bin(4.0)] = 100;
+  s.candidate_faces = 200;
+  s.candidates = 100;
+  EpochOptions o;
+  o.epoch_rounds = 3;
+  o.round_fraction = 0.1;
+  o.candidate_fraction = 0.5;
+  // 1000 faces: budget 100 = the first bin; 3 * 2 * 100 < 900 still to remove.
+  EpochPlan p = plan_epoch(s, 1000, 100, false, o);
+  ASSERT_EQ(p.kind, EpochPlan::Kind::bin_cut);
+  EXPECT_EQ(p.rounds, 3u);
+  EXPECT_LT(1.0, p.cut.key.cost);
+  EXPECT_LT(p.cut.key.cost, 4.0);
+  // 500 still to remove <= 3 * 2 * 100: end game.
+  p = plan_epoch(s, 1000, 500, false, o);
+  ASSERT_EQ(p.kind, EpochPlan::Kind::bin_cut);
+  EXPECT_EQ(p.rounds, 1u);
+  // The first bin covers what is left: exact.
+  p = plan_epoch(s, 1000, 950, false, o);
+  EXPECT_EQ(p.kind, EpochPlan::Kind::exact_cut);
+  EXPECT_EQ(p.needed, 50u);
+  // No candidate anywhere: relax once, then stop.
+  const RoundSummary none;
+  EXPECT_EQ(plan_epoch(none, 1000, 100, false, o).kind, EpochPlan::Kind::relax);
+  EXPECT_EQ(plan_epoch(none, 1000, 100, true, o).kind, EpochPlan::Kind::stop);
+  EXPECT_EQ(plan_epoch(s, 100, 100, false, o).kind, EpochPlan::Kind::stop);
+}
+
+TEST(DecimateEpochs, TwoPatchSimulationEqualsInCoreBitForBit) {
+  for (uint32_t e : {1u, 3u}) {
+    EpochOptions options;
+    options.epoch_rounds = e;
+    for (const auto& c : cases()) {
+      Simulation sim{c.mesh, c.target, options, int(kInitialQuadricRadius + kTrustSpread * e + 3)};
+      sim.split = c.split;
+      const GlobalMesh simulated = sim.run();
+      const GlobalMesh reference = in_core_result(c.mesh, c.target, options);
+      SCOPED_TRACE(std::string(c.name) + " E=" + std::to_string(e));
+      expect_same_mesh(simulated, reference);
+      // Quadrics exchanged at epoch ends are the in-core ones too.
+      for (const auto& [gid, v] : reference.vertices)
+        EXPECT_TRUE(same_bits(v.quadric, simulated.vertices.at(gid).quadric)) << gid;
+      EXPECT_GT(sim.epochs, 5u);
+      std::printf("%s E=%u: %llu epochs, halo up to %d rings, %d growths\n", c.name, e,
+                  static_cast<unsigned long long>(sim.epochs), sim.max_halo_used, sim.halo_growths);
+    }
+  }
+}
+
+TEST(DecimateEpochs, TrustTrackingReportsATooSmallHalo) {
+  // With a one-ring halo the first epoch cannot be exact: the patch must say so, either
+  // in its summary (owned inexact candidates) or in its output (untrusted vertices).
+  const Mesh m = qemflow::testing::icosphere(4, 0.02, 9);
+  Simulation sim{m, 100, {}, 1};
+  GlobalMesh g;
+  for (size_t f = 0; f < m.triangles.size(); ++f) {
+    const auto& t = m.triangles[f];
+    g.faces[f] = {t[0], t[1], t[2]};
+    sim.original_side.push_back((m.points[t[0]][0] + m.points[t[1]][0] + m.points[t[2]][0]) < 0 ? 0 : 1);
+  }
+  for (size_t v = 0; v < m.points.size(); ++v) g.vertices[v] = {m.points[v], {}, 0};
+  PatchDecimator d(sim.patch(g, 0, 1, true), {});
+  EXPECT_GT(d.untrusted_count(), 0u);
+  d.prepare_round();
+  EXPECT_GT(d.summarize().inexact_candidates, 0u);
+  // Every vertex of an in-core patch is trusted, and stays so.
+  PatchDecimator whole(whole_patch(m), {});
+  EXPECT_EQ(whole.untrusted_count(), 0u);
+  whole.prepare_round();
+  EXPECT_EQ(whole.summarize().inexact_candidates, 0u);
+  EXPECT_EQ(whole.owned_candidates().size(), whole.candidates().size());
+}
+
+}  // namespace
+}  // namespace qemflow::nodes
