@@ -77,6 +77,17 @@ TEST(Reencode, OutOfCoreDereferenceWithTinyWindowsGivesTheSameMesh) {
   expect_same_mesh(in, dir / "out.obj");
 }
 
+TEST(Reencode, ObjInputWithUnknownCountsGoesOutOfCore) {
+  TempDir dir;
+  auto in = make_mesh(dir, 20'000, "in.obj");
+  Governor governor(64ull << 20, 0);
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = dir.path()};
+  options.load.window_vertices = 1'500;
+  auto result = run_reencode(governor, options, {});
+  EXPECT_TRUE(result.report["out_of_core_dereference"].get<bool>());  // no vertex count up front
+  expect_same_mesh(in, dir / "out.ply");
+}
+
 TEST(Reencode, DoubleCoordinatesKeepEveryBitInBothModes) {
   TempDir dir;
   gen::GenOptions gen_options;
@@ -195,6 +206,30 @@ TEST(Reencode, ScratchWriteErrorEndsCleanlyWithNothingLeftBehind) {
   EXPECT_NE(message.find(scratch_dir.path().string()), std::string::npos) << message;
   EXPECT_TRUE(directory_empty(scratch_dir.path()));
   EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 1);
+}
+
+TEST(Reencode, BadInputEndsWithAOneLineErrorAndNothingLeftBehind) {
+  TempDir dir, scratch_dir;
+  {
+    std::ofstream ply(dir / "bad.ply");
+    ply << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+           "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+           "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 1 7\n";
+  }
+  for (bool out_of_core : {false, true}) {
+    Governor governor(64ull << 20, 0);
+    ReencodeOptions options{.input = dir / "bad.ply", .output = dir / "out.ply", .scratch_dir = scratch_dir.path()};
+    options.load.force_out_of_core = out_of_core;
+    try {
+      run_reencode(governor, options, {});
+      FAIL() << "accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::bad_input) << e.what();
+      EXPECT_NE(std::string(e.what()).find("bad.ply"), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
+    EXPECT_TRUE(directory_empty(scratch_dir.path()));
+  }
 }
 
 TEST(Reencode, MissingScratchDirectoryIsARefusedUpFront) {
