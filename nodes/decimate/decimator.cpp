@@ -691,14 +691,14 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
   return removed;
 }
 
-PatchOutput PatchDecimator::extract() const {
+PatchOutput PatchDecimator::extract(bool owned_only) const {
   PatchOutput out;
   std::vector<std::pair<uint64_t, std::array<uint32_t, 3>>> faces;
   faces.reserve(faces_alive_ + passthrough_.size());
   for (size_t f = 0; f < fv_.size(); ++f)
-    if (falive_[f] && (fowned_.empty() || fowned_[f])) faces.push_back({fgid_[f], fv_[f]});
+    if (falive_[f] && (!owned_only || fowned_.empty() || fowned_[f])) faces.push_back({fgid_[f], fv_[f]});
   for (size_t i = 0; i < passthrough_.size(); ++i)
-    if (passthrough_owned_[i]) faces.push_back({passthrough_gids_[i], passthrough_[i]});
+    if (!owned_only || passthrough_owned_[i]) faces.push_back({passthrough_gids_[i], passthrough_[i]});
   tbb::parallel_sort(faces.begin(), faces.end(),
                      [](const auto& x, const auto& y) { return x.first < y.first; });
   std::vector<uint8_t> used(pos_.size(), 0);
@@ -724,6 +724,7 @@ PatchOutput PatchDecimator::extract() const {
     uint32_t degree = 0;
     for (uint32_t c = head_[v]; c != kNone; c = next_[c]) degree += falive_[c / 3];
     out.degrees.push_back(degree);
+    out.trusted.push_back((vflag_[v] & kUntrusted) ? 0 : 1);
     out.untrusted_vertices += (vflag_[v] & kUntrusted) ? 1 : 0;
   }
   // Faces with a repeated vertex count once for each distinct vertex.

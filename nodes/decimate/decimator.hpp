@@ -153,6 +153,7 @@ struct PatchOutput {
   std::vector<Quadric> quadrics;
   std::vector<uint8_t> locked;
   std::vector<uint32_t> degrees;         // alive faces around the vertex in this patch
+  std::vector<uint8_t> trusted;          // the vertex's state is the global one
   std::vector<std::array<uint32_t, 3>> faces;  // sorted by global face id
   std::vector<uint64_t> face_gids;
   uint64_t untrusted_vertices = 0;       // output vertices whose state may be wrong
@@ -185,7 +186,9 @@ class PatchDecimator {
   uint64_t vertex_gid(uint32_t v) const { return vgid_[v]; }
   uint64_t locked_vertices() const { return locked_count_; }
   uint64_t dropped_faces() const { return dropped_faces_; }
-  PatchOutput extract() const;
+  // The owned faces (all faces with owned_only = false, for diagnostics) and their
+  // vertices.
+  PatchOutput extract(bool owned_only = true) const;
 
  private:
   struct Scratch;
