@@ -47,9 +47,9 @@ struct ReencodeResult {
 
 ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, const JobHooks& hooks);
 
-// Scratch space to ask for up front, from the input's size on disk: blocks, corners
-// and resolved corners, compressed, measured at under this many times the input.
-uint64_t expected_scratch_bytes(uint64_t input_file_bytes);
+// Scratch space to ask for up front, from the input's size on disk (vertex chunks,
+// bucketed faces and blocks, compressed).
+uint64_t expected_scratch_bytes(uint64_t input_file_bytes, bool zstd_input);
 
 }  // namespace qemflow::engine
 
