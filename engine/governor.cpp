@@ -56,6 +56,46 @@ Lease Lease::split(uint64_t bytes) {
   return Lease(governor_, owner_, bytes);
 }
 
+Lease Lease::split(uint64_t bytes, const std::string& owner) {
+  bytes = std::min(bytes, bytes_);
+  if (!governor_) return {};
+  void* to = governor_->record_for(owner);
+  governor_->move_bytes(owner_, to, bytes);
+  bytes_ -= bytes;
+  return Lease(governor_, to, bytes);
+}
+
+void Lease::merge(Lease&& other) {
+  if (!other.governor_) return;
+  if (!governor_) {
+    *this = std::move(other);
+    return;
+  }
+  governor_->move_bytes(other.owner_, owner_, other.bytes_);
+  bytes_ += other.bytes_;
+  other.governor_ = nullptr;
+  other.owner_ = nullptr;
+  other.bytes_ = 0;
+}
+
+void* Governor::record_for(const std::string& owner) {
+  std::lock_guard lock(mutex_);
+  return owner_record(owner);
+}
+
+void* Governor::move_bytes(void* from, void* to, uint64_t bytes) {
+  std::lock_guard lock(mutex_);
+  auto& f = static_cast<Owner*>(from)->stats;
+  auto& t = static_cast<Owner*>(to)->stats;
+  if (&f == &t) return to;
+  f.current -= bytes;
+  t.current += bytes;
+  t.peak = std::max(t.peak, t.current);
+  t.granted_total += bytes;
+  ++t.grants;
+  return to;
+}
+
 Governor::Governor(uint64_t budget, uint64_t baseline) : budget_(budget), baseline_(baseline) {
   if (baseline >= budget) {
     throw Error(ErrorKind::resource,

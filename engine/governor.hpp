@@ -44,8 +44,13 @@ class Lease {
   void shrink_to(uint64_t bytes);
   // Takes `extra` more bytes if they are free right now; false (unchanged) if not.
   bool try_grow(uint64_t extra);
-  // Moves `bytes` (at most all) of this lease into a new lease of the same owner.
+  // Moves `bytes` (at most all) of this lease into a new lease of the same owner, or
+  // of `owner` (the bytes then count as that owner's from now on). No waiting: this is
+  // how a job hands out parts of a reservation it already holds.
   Lease split(uint64_t bytes);
+  Lease split(uint64_t bytes, const std::string& owner);
+  // Takes `other`'s bytes into this lease (back to this lease's owner); `other` ends empty.
+  void merge(Lease&& other);
   void release();
 
  private:
@@ -121,6 +126,8 @@ class Governor {
   Lease grant_when_free(const std::string& owner, uint64_t min, uint64_t max, bool wait,
                         const std::function<bool()>& stop, std::function<void()>* on_available);
   void give_back(void* owner, uint64_t bytes);
+  void* move_bytes(void* from, void* to, uint64_t bytes);  // accounting only
+  void* record_for(const std::string& owner);
   bool take_more(void* owner, uint64_t bytes);
   void notify_after_release(std::unique_lock<std::mutex>& lock);
 

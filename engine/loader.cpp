@@ -186,16 +186,27 @@ class Loader {
     input_.path = input;
     input_.reader = job_.io().call("open input", [&] { return io::open_mesh_reader(input); });
     input_.size = input_.reader->info().file_size;
-    capacity_ = job_.governor().available();
-    uint64_t needed = BucketSpill::min_lease_bytes(sizeof(BlockFace)) * 2 + 4 * max_input_lease;
-    job_.governor().require_fits(job_.owner("loader"), needed);
+    // One reservation for everything the loader holds for a whole pass (spills,
+    // vertex chunks, face ranges), taken at once and handed out with split(): a job
+    // never holds part of its working set while waiting for the rest, so jobs sharing
+    // a governor cannot deadlock. Streamed items (batches, frames) come from what is
+    // left, through leases that never wait while holding anything.
+    uint64_t reserve_min = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace));
+    uint64_t items_min = 4 * max_input_lease;
+    job_.governor().require_fits(job_.owner("loader"), reserve_min + items_min);
+    uint64_t available = job_.governor().available();
+    uint64_t want = std::max(reserve_min, available - std::min(available, std::max(items_min, available / 4)));
+    reserve_ = job_.governor().acquire(job_.owner("loader reserve"), reserve_min, want,
+                                       [this] { return job_.stopped(); });
+    job_.check();
+    capacity_ = reserve_.bytes();
   }
 
   LoadedMesh run() {
     const auto& info = input_.reader->info();
     mesh_.input_bytes = input_.size;
     bool resident = info.vertex_count && !options_.force_out_of_core &&
-                    *info.vertex_count * sizeof(Point) <= capacity_ / 2;
+                    *info.vertex_count * sizeof(Point) <= capacity_ * 6 / 10;
     if (resident) {
       load_resident(*info.vertex_count, info.polygon_count.value_or(0));
     } else {
@@ -206,11 +217,21 @@ class Loader {
   }
 
  private:
+  // A part of the reservation for `owner`. The loader's fractions of it never add up
+  // to more than it holds at once.
+  Lease take(const char* owner, uint64_t bytes) {
+    if (bytes > reserve_.bytes()) {
+      throw Error(ErrorKind::internal, std::string("loader: ") + owner + " does not fit the reservation");
+    }
+    return reserve_.split(bytes, job_.owner(owner));
+  }
+  void give_back(Lease&& lease) { reserve_.merge(std::move(lease)); }
+
   Lease spill_lease(const char* owner, double fraction, uint32_t record_size) {
     uint64_t min = BucketSpill::min_lease_bytes(record_size);
     // Past a few hundred MiB, bigger spill buffers only make bigger frames.
-    uint64_t max = std::clamp<uint64_t>(uint64_t(double(capacity_) * fraction), min, 192ull << 20);
-    return job_.governor().acquire(job_.owner(owner), min, max, [this] { return job_.stopped(); });
+    uint64_t bytes = std::clamp<uint64_t>(uint64_t(double(capacity_) * fraction), min, 192ull << 20);
+    return take(owner, std::min(bytes, std::max(min, reserve_.bytes())));
   }
 
   StreamPass<InputItem> input_pass() {
@@ -219,7 +240,7 @@ class Loader {
     pass.read_name = "read input";
     pass.owner = "input batches";
     pass.min_item_bytes = min_input_lease;
-    pass.max_item_bytes = std::clamp<uint64_t>(capacity_ / 32, min_input_lease, max_input_lease);
+    pass.max_item_bytes = std::clamp<uint64_t>(capacity_ / 24, min_input_lease, max_input_lease);
     pass.read = [this](InputItem& item, Lease& lease) {
       bool more = input_.read(item, lease);
       report_read_progress();
@@ -274,7 +295,7 @@ class Loader {
   }
 
   void collect_blocks(BucketSpill& blocks) {
-    blocks.finish();
+    give_back(blocks.finish());
     for (uint32_t c = 0; c < mesh_.grid.count(); ++c) {
       const auto& frames = blocks.frames(c);
       mesh_.blocks[c].insert(mesh_.blocks[c].end(), frames.begin(), frames.end());
@@ -284,8 +305,7 @@ class Loader {
   // All vertex positions in memory; faces resolved as they stream by.
   void load_resident(uint64_t vertex_count, uint64_t polygon_count) {
     progress_span_ = 0.8;
-    Lease vertex_lease = job_.governor().acquire(job_.owner("vertex positions"), vertex_count * sizeof(Point),
-                                                 vertex_count * sizeof(Point));
+    Lease vertex_lease = take("vertex positions", vertex_count * sizeof(Point));
     auto& positions = mesh_.vertices.resident;
     positions.resize(vertex_count);
     mesh_.vertices.count = vertex_count;
@@ -441,8 +461,8 @@ class Loader {
     };
     run_stream_pass(job_, pass);
     vertex_writer.finish();
-    local.finish();
-    corners.finish();
+    give_back(local.finish());
+    give_back(corners.finish());
     if (face_count && max_index >= vertex_count) index_out_of_range(input_.path, 0, max_index, vertex_count);
     mesh_.vertex_count = mesh_.vertices.count = vertex_count;
     mesh_.face_count = face_count;
@@ -464,8 +484,7 @@ class Loader {
     StageTimer timer(job_, "resolve");
     BucketSpill blocks(job_, scratch_, "blocks-local", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
-    Lease pair_lease = job_.governor().acquire(job_.owner("vertex window"), 2 * chunk * sizeof(Point),
-                                               2 * chunk * sizeof(Point));
+    Lease pair_lease = take("vertex window", 2 * chunk * sizeof(Point));
     UninitializedVector<Point> pair(2 * chunk);  // chunks c and c+1
     uint32_t upper_loaded = UINT32_MAX;  // which chunk sits in the upper half
     for (uint32_t c = 0; c < chunks && c < local.bucket_count(); ++c) {
@@ -509,8 +528,8 @@ class Loader {
           sizeof(BlockFace) + sizeof(uint32_t));
       job_.progress(0.4 + 0.3 * double(c + 1) / chunks, "resolve");
     }
-    pair_lease.release();
     pair = {};
+    give_back(std::move(pair_lease));
     collect_blocks(blocks);
     remove_files(local);
   }
@@ -531,7 +550,7 @@ class Loader {
       if (corners.frames(c).empty()) continue;
       uint64_t first = uint64_t(c) * chunk;
       uint64_t n = std::min<uint64_t>(chunk, mesh_.vertex_count - first);
-      Lease window_lease = job_.governor().acquire(job_.owner("vertex window"), n * sizeof(Point), n * sizeof(Point));
+      Lease window_lease = take("vertex window", n * sizeof(Point));
       UninitializedVector<Point> positions(n);
       load_vertex_window(job_, scratch_, mesh_.vertices, c, positions.data());
       for_each_frame(
@@ -550,9 +569,11 @@ class Loader {
             for (uint64_t i = 0; i < header.count; ++i) resolved.add(uint32_t(res[i].corner / 3 / range), &res[i]);
           },
           sizeof(ResolvedCorner));
+      positions = {};
+      give_back(std::move(window_lease));
       job_.progress(0.7 + 0.1 * double(c + 1) / chunks, "resolve");
     }
-    resolved.finish();
+    give_back(resolved.finish());
     remove_files(corners);
     trim_allocator();
     timer.emplace(job_, "assemble");
@@ -564,7 +585,7 @@ class Loader {
       uint64_t first_face = uint64_t(r) * range;
       uint64_t n = std::min<uint64_t>(range, face_count - first_face);
       // Slots for every face of the range; only spanning faces fill theirs.
-      Lease range_lease = job_.governor().acquire(job_.owner("face range"), n * 3 * 32 + n, n * 3 * 32 + n);
+      Lease range_lease = take("face range", n * 3 * 32 + n);
       UninitializedVector<uint64_t> vertex_of(3 * n);
       UninitializedVector<Point> position_of(3 * n);
       std::vector<uint8_t> filled(n, 0);
@@ -594,6 +615,10 @@ class Loader {
         }
         add_face(blocks, face);
       }
+      vertex_of = {};
+      position_of = {};
+      filled = {};
+      give_back(std::move(range_lease));
       job_.check();
       job_.progress(0.8 + 0.1 * double(r + 1) / range_count, "assemble");
     }
@@ -615,6 +640,7 @@ class Loader {
   ScratchStore& scratch_;
   LoadOptions options_;
   InputStream input_;
+  Lease reserve_;  // the loader's working set; parts are split off and merged back
   uint64_t capacity_ = 0;
   double progress_span_ = 0.4;
   Box box_;

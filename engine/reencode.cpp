@@ -93,6 +93,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
   JobSettings settings;
   settings.threads = options.threads;
   settings.trace_events = options.trace_path.empty() ? 0 : options.trace_events;
+  if (!options.job_name.empty()) settings.owner_prefix = options.job_name + "/";
   Job job(governor, hooks, settings);
   ReencodeResult result;
   auto write_trace = [&] {

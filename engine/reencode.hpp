@@ -35,6 +35,7 @@ struct ReencodeOptions {
   std::filesystem::path report_path;  // empty: no report file
   int threads = 0;                    // 0: all cores
   size_t trace_events = 1 << 18;      // cap of the trace buffer when tracing
+  std::string job_name;               // prefixes this job's governor owners ("job 2/")
   LoadOptions load;
 };
 

@@ -198,8 +198,8 @@ void BucketSpill::flush(const std::vector<uint32_t>& which) {
   }
 }
 
-void BucketSpill::finish() {
-  if (finished_) return;
+Lease BucketSpill::finish() {
+  if (finished_) return {};
   // Flush in groups that fit the in-flight allowance.
   std::vector<uint32_t> group;
   uint64_t group_bytes = 0;
@@ -230,8 +230,8 @@ void BucketSpill::finish() {
   job_.io().call("scratch finalize", [scratch, files] {
     for (uint32_t f : files) scratch->finalize(f);
   });
-  lease_.release();
   finished_ = true;
+  return std::move(lease_);
 }
 
 }  // namespace qemflow::engine

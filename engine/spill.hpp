@@ -15,8 +15,9 @@
 //   else changes (the minimum lease is min_lease_bytes()).
 // - A frame holds at most 2 MiB of records (a bucket flushes as several frames), so
 //   frame buffers, written and read, come from the heap rather than fresh mappings.
-// - finish() flushes everything, waits for the writes and finalizes the files; then
-//   frames(bucket) lists where each bucket's records are. Each bucket is one file.
+// - finish() flushes everything, waits for the writes and finalizes the files, and
+//   hands the lease back; then frames(bucket) lists where each bucket's records are.
+//   Each bucket is one file.
 // - Within a bucket, frames keep the order in which records were added.
 #include <condition_variable>
 #include <cstdint>
@@ -40,7 +41,8 @@ class BucketSpill {
   static uint64_t min_lease_bytes(uint32_t record_size);
 
   void add(uint32_t bucket, const void* record);
-  void finish();
+  // Returns the spill's lease (for its owner to reuse or release).
+  Lease finish();
 
   uint32_t bucket_count() const { return uint32_t(buckets_.size()); }
   const std::vector<FrameRef>& frames(uint32_t bucket) const;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <map>
 #include <chrono>
 #include <thread>
 
@@ -124,6 +125,28 @@ TEST(Governor, LeasesShrinkGrowAndSplitWithExactAccounting) {
   ASSERT_EQ(owners.size(), 1u);
   EXPECT_EQ(owners[0].peak, 100u);
   EXPECT_EQ(owners[0].current, 10u);
+}
+
+TEST(Governor, AReservationIsHandedOutToNodesAndTakenBack) {
+  Governor governor(100, 0);
+  Lease reserve = governor.try_acquire("loader", 80);
+  Lease window = reserve.split(30, "vertex window");
+  Lease spill = reserve.split(40, "block writer");
+  EXPECT_EQ(reserve.bytes(), 10u);
+  EXPECT_EQ(governor.in_use(), 80u);  // handing out takes nothing more from the budget
+  EXPECT_FALSE(governor.try_acquire("other", 21));
+  reserve.merge(std::move(window));
+  EXPECT_EQ(reserve.bytes(), 40u);
+  EXPECT_EQ(window.bytes(), 0u);
+  spill.release();  // a part released on its own goes back to the governor
+  EXPECT_EQ(governor.in_use(), 40u);
+  std::map<std::string, OwnerStats> by_name;
+  for (const auto& o : governor.owners()) by_name[o.owner] = o;
+  EXPECT_EQ(by_name["vertex window"].peak, 30u);
+  EXPECT_EQ(by_name["vertex window"].current, 0u);
+  EXPECT_EQ(by_name["block writer"].peak, 40u);
+  EXPECT_EQ(by_name["loader"].current, 40u);
+  EXPECT_EQ(by_name["loader"].peak, 80u);
 }
 
 TEST(Governor, ObserverSeesEveryChange) {

@@ -10,6 +10,8 @@
 
 #include <algorithm>
 #include <fstream>
+#include <set>
+#include <thread>
 #include <nlohmann/json.hpp>
 
 #include "engine/blocks.hpp"
@@ -86,6 +88,36 @@ TEST(Reencode, ObjInputWithUnknownCountsGoesOutOfCore) {
   auto result = run_reencode(governor, options, {});
   EXPECT_TRUE(result.report["out_of_core_dereference"].get<bool>());  // no vertex count up front
   expect_same_mesh(in, dir / "out.ply");
+}
+
+TEST(Reencode, TwoJobsShareOneGovernor) {
+  TempDir dir;
+  auto in = make_mesh(dir, 200'000);
+  Governor governor(48ull << 20, 0);  // less than two jobs would take alone
+  std::vector<std::thread> jobs;
+  std::vector<std::string> errors(2);
+  for (int j = 0; j < 2; ++j) {
+    jobs.emplace_back([&, j] {
+      ReencodeOptions options{.input = in, .output = dir / ("out" + std::to_string(j) + ".ply"),
+                              .scratch_dir = dir.path(), .threads = 1};
+      options.job_name = "job" + std::to_string(j);
+      options.load.force_out_of_core = true;
+      try {
+        run_reencode(governor, options, {});
+      } catch (const std::exception& e) {
+        errors[j] = e.what();
+      }
+    });
+  }
+  for (auto& t : jobs) t.join();
+  EXPECT_EQ(errors, (std::vector<std::string>{"", ""}));
+  EXPECT_LE(governor.peak_in_use(), governor.capacity());
+  EXPECT_EQ(governor.in_use(), 0u);
+  std::set<std::string> prefixes;
+  for (const auto& owner : governor.owners()) prefixes.insert(owner.owner.substr(0, 5));
+  EXPECT_EQ(prefixes, (std::set<std::string>{"job0/", "job1/"}));
+  expect_same_mesh(in, dir / "out0.ply");
+  expect_same_mesh(in, dir / "out1.ply");
 }
 
 TEST(Reencode, DoubleCoordinatesKeepEveryBitInBothModes) {
