@@ -41,8 +41,8 @@ RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_
 
 struct EpochOptions {
   double round_fraction = 0.1;      // most faces a round may remove
-  double candidate_fraction = 0.5;  // most of the candidates' faces a round may remove
-  uint32_t epoch_rounds = 1;        // rounds per epoch in the bulk phase (E)
+  double candidate_fraction = 0.75;  // most of the candidates' faces a round may remove
+  uint32_t epoch_rounds = 4;        // rounds per epoch in the bulk phase (E)
 };
 
 struct EpochPlan {

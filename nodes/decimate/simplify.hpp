@@ -25,8 +25,8 @@ struct SimplifyOptions {
   std::optional<uint64_t> target_faces;  // one of target_faces / ratio
   std::optional<double> ratio;
   bool weld = true;
-  double round_fraction = 0.1;  // most faces a non-final round may remove
-  double candidate_fraction = 0.5;  // most of the candidates' faces a round may remove
+  double round_fraction = EpochOptions{}.round_fraction;  // most faces a non-final round may remove
+  double candidate_fraction = EpochOptions{}.candidate_fraction;  // most of the candidates' faces a round may remove
   uint32_t epoch_rounds = EpochOptions{}.epoch_rounds;  // rounds per global decision (E)
   DecimateParams params;
   // Called after each round with (round, faces now); may be empty.

@@ -4,6 +4,7 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <bit>
 #include <set>
 
 #include "nodes/decimate/simplify.hpp"
@@ -97,6 +98,23 @@ TEST(Decimate, ReportsRoundsAndKeepsOutputOrderedById) {
   const auto r = run(qemflow::testing::icosphere(4, 0.01), 500);
   EXPECT_GT(r.stats.rounds, 1u);
   EXPECT_EQ(r.stats.output_faces, 500u);
+}
+
+// Golden output: catches accidental changes of the in-core result (speed work must keep
+// it). Update only deliberately, with a note in the commit message.
+TEST(Decimate, GoldenHashOfTheInCoreResult) {
+  SimplifyOptions o;
+  o.target_faces = 700;
+  auto m = qemflow::testing::icosphere(5, 0.03, 21);  // 20480 faces
+  const auto r = simplify_in_core(std::move(m.points), std::move(m.triangles), o);
+  uint64_t hash = 1469598103934665603ull;
+  auto mix = [&](uint64_t x) { hash = (hash ^ x) * 1099511628211ull; };
+  for (const auto& t : r.triangles)
+    for (uint64_t v : t) mix(v);
+  for (const auto& p : r.points)
+    for (double x : p) mix(std::bit_cast<uint64_t>(x));
+  EXPECT_EQ(r.triangles.size(), 700u);
+  EXPECT_EQ(hash, 15982766368019565670ull) << hash;
 }
 
 TEST(Weld, MergesExactDuplicatesOnlyAndKeepsTheSmallestIndex) {
