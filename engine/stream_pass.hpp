@@ -24,8 +24,13 @@
 //   Decompression and format conversion belong here.
 // - sink(item): runs on compute threads, one at a time, in no particular order (read
 //   order when `ordered`). State that many items update (a spill, an output cursor) lives here.
+// - No node body may wait for memory: a stage takes its working set (spill buffers,
+//   windows) before the pass, from one reservation (Lease::split), so no job ever holds
+//   part of its memory while waiting for more and jobs sharing a governor cannot
+//   deadlock. Bodies may wait for the I/O thread (it never waits for compute).
 // - Cancel / failure: once the job has stopped, read ends the stream and transform and
-//   sink skip their work, so the graph drains quickly; run() then rethrows the error.
+//   sink skip their work, so the graph drains quickly; run_stream_pass then rethrows
+//   the error. The whole graph is wired in run_stream_pass, below.
 #include <oneapi/tbb/flow_graph.h>
 
 #include <functional>
