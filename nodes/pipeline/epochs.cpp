@@ -1,0 +1,807 @@
+#include "nodes/pipeline/epochs.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <deque>
+#include <limits>
+#include <memory>
+#include <mutex>
+
+#include "engine/process_memory.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::nodes::pipeline {
+namespace {
+
+using engine::Bytes;
+using engine::FrameHeader;
+using engine::FrameRef;
+using engine::Job;
+using engine::Lease;
+using engine::ScratchStore;
+
+struct FaceRecord {
+  uint64_t fid = 0;
+  std::array<uint64_t, 3> v{};
+  uint32_t owner = 0;
+  uint32_t unused = 0;
+};
+static_assert(sizeof(FaceRecord) == 40);
+
+struct VertexRecord {
+  uint64_t gid = 0;
+  Vec3 position{};
+  Quadric quadric{};
+  uint32_t degree = 0;
+  uint8_t locked = 0;
+  uint8_t has_quadric = 0;
+  uint8_t unused[2] = {0, 0};
+};
+static_assert(sizeof(VertexRecord) == 120);
+
+struct Box {
+  Point min{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+            std::numeric_limits<double>::infinity()};
+  Point max{-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+            -std::numeric_limits<double>::infinity()};
+  void add(const Point& p) {
+    for (int k = 0; k < 3; ++k) {
+      min[k] = std::min(min[k], p[k]);
+      max[k] = std::max(max[k], p[k]);
+    }
+  }
+  void add(const Box& b) {
+    add(b.min);
+    add(b.max);
+  }
+  bool empty() const { return !(min[0] <= max[0]); }
+  bool contains(const Point& p) const {
+    for (int k = 0; k < 3; ++k)
+      if (p[k] < min[k] || p[k] > max[k]) return false;
+    return true;
+  }
+  bool meets(const Box& b) const {
+    for (int k = 0; k < 3; ++k)
+      if (b.max[k] < min[k] || b.min[k] > max[k]) return false;
+    return true;
+  }
+  Box grown(double margin) const {
+    Box b = *this;
+    for (int k = 0; k < 3; ++k) {
+      b.min[k] -= margin;
+      b.max[k] += margin;
+    }
+    return b;
+  }
+};
+
+// A chunk blob: u64 faces, u64 vertices, FaceRecord[faces], VertexRecord[vertices]
+// (vertices sorted by gid). Stored as one frame of 1-byte records.
+struct ChunkMeta {
+  uint32_t owner = 0;
+  uint64_t faces = 0;
+  Box box;
+  double edge_sum = 0;  // summed edge lengths of the chunk's faces (margin estimate)
+};
+
+struct Chunk {
+  ChunkMeta meta;
+  FrameRef frame;
+};
+
+size_t blob_bytes(size_t faces, size_t vertices) {
+  return 16 + faces * sizeof(FaceRecord) + vertices * sizeof(VertexRecord);
+}
+
+struct BlobView {
+  uint64_t faces = 0, vertices = 0;
+  const FaceRecord* face = nullptr;
+  const VertexRecord* vertex = nullptr;
+};
+BlobView view_blob(const std::byte* data, size_t size) {
+  BlobView v;
+  if (size < 16) throw Error(ErrorKind::internal, "state chunk too short");
+  std::memcpy(&v.faces, data, 8);
+  std::memcpy(&v.vertices, data + 8, 8);
+  if (blob_bytes(v.faces, v.vertices) != size) throw Error(ErrorKind::internal, "state chunk size mismatch");
+  v.face = reinterpret_cast<const FaceRecord*>(data + 16);
+  v.vertex = reinterpret_cast<const VertexRecord*>(data + 16 + v.faces * sizeof(FaceRecord));
+  return v;
+}
+
+const VertexRecord* find_vertex(const VertexRecord* begin, const VertexRecord* end, uint64_t gid) {
+  const VertexRecord* it =
+      std::lower_bound(begin, end, gid, [](const VertexRecord& r, uint64_t g) { return r.gid < g; });
+  return it != end && it->gid == gid ? it : nullptr;
+}
+
+double distance(const Point& a, const Point& b) {
+  return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
+}
+
+// Builds a chunk blob from faces and the (gid-sorted, deduplicated) vertex records they use.
+Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
+  Bytes blob(blob_bytes(faces.size(), vertices.size()));
+  const uint64_t nf = faces.size(), nv = vertices.size();
+  std::memcpy(blob.data(), &nf, 8);
+  std::memcpy(blob.data() + 8, &nv, 8);
+  if (nf) std::memcpy(blob.data() + 16, faces.data(), nf * sizeof(FaceRecord));
+  if (nv) std::memcpy(blob.data() + 16 + nf * sizeof(FaceRecord), vertices.data(), nv * sizeof(VertexRecord));
+  return blob;
+}
+
+ChunkMeta meta_of(uint32_t owner, const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
+  ChunkMeta m;
+  m.owner = owner;
+  m.faces = faces.size();
+  for (const auto& v : vertices) m.box.add(v.position);
+  const VertexRecord* b = vertices.data();
+  const VertexRecord* e = b + vertices.size();
+  for (const auto& f : faces) {
+    const Point& p0 = find_vertex(b, e, f.v[0])->position;
+    const Point& p1 = find_vertex(b, e, f.v[1])->position;
+    const Point& p2 = find_vertex(b, e, f.v[2])->position;
+    m.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
+  }
+  return m;
+}
+
+// The global mesh between epochs: chunks in one scratch file.
+struct MeshState {
+  uint32_t file = 0;
+  std::deque<Chunk> chunks;
+  std::mutex mutex;
+  uint64_t faces = 0;
+  uint64_t blob_bytes_total = 0;
+};
+
+// Encodes and queues a chunk for writing (the I/O thread fills in the offset).
+void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta, const Bytes& blob,
+                 Lease carried) {
+  auto encoded = std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size()));
+  size_t index;
+  {
+    std::lock_guard lock(state.mutex);
+    index = state.chunks.size();
+    Chunk c;
+    c.meta = meta;
+    c.frame.file = state.file;
+    c.frame.bytes = encoded->size();
+    c.frame.count = blob.size();
+    c.frame.tag = meta.owner;
+    state.chunks.push_back(c);
+    state.faces += meta.faces;
+    state.blob_bytes_total += blob.size();
+  }
+  job.stage("epochs").bytes_written += encoded->size();
+  auto held = std::make_shared<Lease>(std::move(carried));
+  const uint32_t file = state.file;
+  job.io().submit(
+      "write state chunk",
+      [&scratch, &state, encoded, held, index, file] {
+        const uint64_t offset = scratch.append(file, encoded->data(), encoded->size());
+        {
+          std::lock_guard lock(state.mutex);
+          state.chunks[index].frame.offset = offset;
+        }
+        *encoded = Bytes();
+        held->release();
+      },
+      job.error_handler(), encoded->size());
+}
+
+void finish_state(Job& job, ScratchStore& scratch, MeshState& state) {
+  job.io().drain();
+  job.check();
+  job.io().call("finalize state", [&] { scratch.finalize(state.file); });
+}
+
+// Splits faces (with a lookup for their vertex records) into chunks of at most
+// `chunk_faces`, in the given order, and writes them.
+template <class VertexOf>
+void write_faces_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, uint32_t owner,
+                           const std::vector<FaceRecord>& faces, uint64_t chunk_faces, VertexOf vertex_of) {
+  std::vector<FaceRecord> part;
+  std::vector<VertexRecord> verts;
+  for (size_t first = 0; first < faces.size(); first += chunk_faces) {
+    const size_t n = std::min<size_t>(chunk_faces, faces.size() - first);
+    part.assign(faces.begin() + first, faces.begin() + first + n);
+    std::vector<uint64_t> gids;
+    gids.reserve(3 * n);
+    for (const auto& f : part)
+      for (uint64_t g : f.v) gids.push_back(g);
+    std::sort(gids.begin(), gids.end());
+    gids.erase(std::unique(gids.begin(), gids.end()), gids.end());
+    verts.clear();
+    for (uint64_t g : gids) verts.push_back(vertex_of(g));
+    const ChunkMeta meta = meta_of(owner, part, verts);
+    write_chunk(job, scratch, state, meta, make_blob(part, verts), Lease());
+  }
+}
+
+// Morton code of a point in a box (10 bits per axis): chunks of spatially close faces.
+uint32_t morton(const Point& p, const Box& box) {
+  uint32_t code = 0;
+  uint32_t q[3];
+  for (int k = 0; k < 3; ++k) {
+    const double extent = box.max[k] - box.min[k];
+    const double t = extent > 0 ? (p[k] - box.min[k]) / extent : 0.0;
+    q[k] = uint32_t(std::clamp(t * 1023.0, 0.0, 1023.0));
+  }
+  for (int b = 9; b >= 0; --b)
+    for (int k = 0; k < 3; ++k) code = (code << 1) | ((q[k] >> b) & 1u);
+  return code;
+}
+
+// ---------------------------------------------------------------- conversion
+
+// Degrees (faces per vertex) over the blocks: a stand-in until the loader gives them.
+std::vector<uint32_t> count_degrees(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, Lease& lease) {
+  lease = job.governor().acquire(job.owner("degrees"), mesh.vertex_count * 4, mesh.vertex_count * 4);
+  std::vector<uint32_t> degree(mesh.vertex_count, 0);
+  std::vector<FrameRef> frames;
+  for (const auto& b : mesh.blocks) frames.insert(frames.end(), b.begin(), b.end());
+  engine::for_each_frame(
+      job, scratch, "convert", "block frames", frames, mesh.block_record_size, {},
+      [&](const FrameHeader& header, Bytes& records, Lease&) {
+        for (uint64_t i = 0; i < header.count; ++i) {
+          Triangle t;
+          std::memcpy(&t, records.data() + i * mesh.block_record_size + 8, sizeof t);
+          for (uint64_t v : t) ++degree[v];
+        }
+      },
+      0);
+  return degree;
+}
+
+// Blocks → state chunks of one owner each, with degrees; per-owner face counts.
+void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const Partition& partition,
+                    const std::vector<uint32_t>& degree, uint64_t chunk_faces, MeshState& state) {
+  engine::StageTimer timer(job, "convert");
+  std::vector<FrameRef> frames;
+  for (const auto& b : mesh.blocks) frames.insert(frames.end(), b.begin(), b.end());
+  struct Out {
+    ChunkMeta meta;
+    Bytes blob;
+  };
+  std::mutex outs_mutex;
+  std::vector<std::vector<Out>> outs;  // by transform result slot
+  size_t done = 0;
+  engine::for_each_frame(
+      job, scratch, "convert", "block frames", frames, mesh.block_record_size,
+      [&](const FrameHeader& header, Bytes& records, Lease&) {
+        std::vector<engine::BlockFace> faces(header.count);
+        engine::unpack_block_faces(records.data(), header.count, mesh.block_record_size, faces.data());
+        std::vector<std::pair<uint32_t, uint32_t>> by_owner(faces.size());  // (owner, index)
+        for (size_t i = 0; i < faces.size(); ++i) {
+          const auto& p = faces[i].positions;
+          const Point bary = {(p[0][0] + p[1][0] + p[2][0]) / 3, (p[0][1] + p[1][1] + p[2][1]) / 3,
+                              (p[0][2] + p[1][2] + p[2][2]) / 3};
+          by_owner[i] = {partition.owner(bary), uint32_t(i)};
+        }
+        std::sort(by_owner.begin(), by_owner.end());
+        std::vector<Out> result;
+        for (size_t first = 0; first < by_owner.size();) {
+          size_t last = first;
+          while (last < by_owner.size() && by_owner[last].first == by_owner[first].first &&
+                 last - first < chunk_faces)
+            ++last;
+          std::vector<FaceRecord> fr;
+          std::vector<VertexRecord> vr;
+          for (size_t i = first; i < last; ++i) {
+            const auto& f = faces[by_owner[i].second];
+            fr.push_back({f.id, f.vertices, by_owner[i].first, 0});
+            for (int k = 0; k < 3; ++k) {
+              VertexRecord r;
+              r.gid = f.vertices[k];
+              r.position = f.positions[k];
+              r.degree = degree[r.gid];
+              vr.push_back(r);
+            }
+          }
+          std::sort(fr.begin(), fr.end(), [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
+          std::sort(vr.begin(), vr.end(), [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
+          vr.erase(std::unique(vr.begin(), vr.end(),
+                               [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
+                   vr.end());
+          result.push_back({meta_of(by_owner[first].first, fr, vr), make_blob(fr, vr)});
+          first = last;
+        }
+        // Hand the results to the sink through the records buffer's slot index.
+        size_t slot;
+        {
+          std::lock_guard lock(outs_mutex);
+          slot = outs.size();
+          outs.push_back(std::move(result));
+        }
+        records.resize(sizeof slot);
+        std::memcpy(records.data(), &slot, sizeof slot);
+      },
+      [&](const FrameHeader&, Bytes& records, Lease&) {
+        size_t slot;
+        std::memcpy(&slot, records.data(), sizeof slot);
+        std::vector<Out> result;
+        {
+          std::lock_guard lock(outs_mutex);
+          result = std::move(outs[slot]);
+        }
+        for (auto& o : result) write_chunk(job, scratch, state, o.meta, o.blob, Lease());
+        job.progress(0.3 * double(++done) / double(frames.size()), "convert");
+      },
+      250);
+  finish_state(job, scratch, state);
+}
+
+// ---------------------------------------------------------------- patches
+
+struct PatchPlan {
+  enum class Kind { summary_only, bin_cut, exact_cut } kind = Kind::summary_only;
+  RoundCut cut;
+  uint32_t rounds = 0;
+};
+
+struct Gathered {
+  std::vector<FaceRecord> faces;
+  std::vector<VertexRecord> vertices;  // sorted by gid, unique
+};
+
+// Loads patch p's owned faces and every face of other owners with a vertex in `box`.
+Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state, uint32_t p, const Box& box,
+                         bool everything) {
+  std::vector<FrameRef> frames;
+  for (const auto& c : state.chunks)
+    if (everything || c.meta.owner == p || c.meta.box.meets(box)) frames.push_back(c.frame);
+  Gathered g;
+  engine::for_each_frame(
+      job, scratch, "epochs", "state frames", frames, 1,
+      [&](const FrameHeader& header, Bytes& records, Lease&) {
+        if (everything || header.tag == p) return;
+        const BlobView v = view_blob(records.data(), records.size());
+        std::vector<FaceRecord> kept;
+        for (uint64_t i = 0; i < v.faces; ++i) {
+          const FaceRecord& f = v.face[i];
+          bool inside = false;
+          for (uint64_t gid : f.v) {
+            const VertexRecord* r = find_vertex(v.vertex, v.vertex + v.vertices, gid);
+            if (r && box.contains(r->position)) inside = true;
+          }
+          if (inside) kept.push_back(f);
+        }
+        std::vector<VertexRecord> verts;
+        std::vector<uint64_t> gids;
+        for (const auto& f : kept)
+          for (uint64_t gid : f.v) gids.push_back(gid);
+        std::sort(gids.begin(), gids.end());
+        gids.erase(std::unique(gids.begin(), gids.end()), gids.end());
+        for (uint64_t gid : gids) verts.push_back(*find_vertex(v.vertex, v.vertex + v.vertices, gid));
+        Bytes blob = make_blob(kept, verts);
+        records.swap(blob);
+      },
+      [&](const FrameHeader&, Bytes& records, Lease&) {
+        const BlobView v = view_blob(records.data(), records.size());
+        g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
+        g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
+      },
+      0);
+  std::sort(g.faces.begin(), g.faces.end(), [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
+  std::sort(g.vertices.begin(), g.vertices.end(),
+            [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
+  g.vertices.erase(std::unique(g.vertices.begin(), g.vertices.end(),
+                               [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
+                   g.vertices.end());
+  return g;
+}
+
+struct BuiltPatch {
+  PatchInput input;
+  bool margin_too_small = false;
+};
+
+// Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks.
+BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
+  BuiltPatch out;
+  const size_t nv = g.vertices.size(), nf = g.faces.size();
+  const VertexRecord* vb = g.vertices.data();
+  const VertexRecord* ve = vb + nv;
+  std::vector<std::array<uint32_t, 3>> local(nf);
+  std::vector<uint32_t> count(nv + 1, 0);
+  for (size_t f = 0; f < nf; ++f)
+    for (int k = 0; k < 3; ++k) {
+      const VertexRecord* r = find_vertex(vb, ve, g.faces[f].v[k]);
+      if (!r) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+      local[f][k] = uint32_t(r - vb);
+      ++count[local[f][k] + 1];
+    }
+  for (size_t v = 0; v < nv; ++v) count[v + 1] += count[v];
+  std::vector<uint32_t> fan(count[nv]);
+  {
+    std::vector<uint32_t> at(count.begin(), count.end() - 1);
+    for (size_t f = 0; f < nf; ++f)
+      for (uint32_t v : local[f]) fan[at[v]++] = uint32_t(f);  // faces ascending: fans in fid order
+  }
+  std::vector<uint8_t> fsel(nf, 0), vsel(nv, 0);
+  std::vector<uint32_t> frontier, next;
+  for (size_t f = 0; f < nf; ++f)
+    if (whole || g.faces[f].owner == p) {
+      fsel[f] = 1;
+      for (uint32_t v : local[f])
+        if (!vsel[v]) {
+          vsel[v] = 1;
+          frontier.push_back(v);
+        }
+    }
+  for (int r = 0; r < rings && !whole; ++r) {
+    next.clear();
+    for (uint32_t v : frontier) {
+      if (count[v + 1] - count[v] < vb[v].degree) {
+        out.margin_too_small = true;
+        return out;
+      }
+      for (uint32_t i = count[v]; i < count[v + 1]; ++i) {
+        const uint32_t f = fan[i];
+        if (fsel[f]) continue;
+        fsel[f] = 1;
+        for (uint32_t u : local[f])
+          if (!vsel[u]) {
+            vsel[u] = 1;
+            next.push_back(u);
+          }
+      }
+    }
+    frontier.swap(next);
+  }
+  // Local numbering of the selected vertices, in gid order.
+  PatchInput& in = out.input;
+  std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
+  const bool given_quadrics = nv > 0 && vb[0].has_quadric;
+  for (size_t v = 0; v < nv; ++v) {
+    if (!vsel[v]) continue;
+    new_index[v] = uint32_t(in.vertex_gids.size());
+    in.vertex_gids.push_back(vb[v].gid);
+    in.positions.push_back(vb[v].position);
+    if (given_quadrics) {
+      in.quadrics.push_back(vb[v].quadric);
+      in.locked.push_back(vb[v].locked);
+    }
+    if (!whole) {
+      uint32_t inside = 0;
+      uint64_t smallest = std::numeric_limits<uint64_t>::max();
+      uint32_t owner = 0;
+      for (uint32_t i = count[v]; i < count[v + 1]; ++i)
+        if (fsel[fan[i]]) {
+          ++inside;
+          if (g.faces[fan[i]].fid < smallest) {
+            smallest = g.faces[fan[i]].fid;
+            owner = g.faces[fan[i]].owner;
+          }
+        }
+      const bool incomplete = inside < vb[v].degree;
+      in.incomplete.push_back(incomplete);
+      in.owned_vertex.push_back(!incomplete && owner == p);
+    }
+  }
+  for (size_t f = 0; f < nf; ++f) {
+    if (!fsel[f]) continue;
+    in.faces.push_back({new_index[local[f][0]], new_index[local[f][1]], new_index[local[f][2]]});
+    in.face_gids.push_back(g.faces[f].fid);
+    if (!whole) in.owned_face.push_back(g.faces[f].owner == p);
+  }
+  return out;
+}
+
+void run_patch_plan(PatchDecimator& d, const PatchPlan& plan) {
+  if (plan.kind == PatchPlan::Kind::summary_only) return;
+  d.prepare_round();
+  d.apply_cut(plan.cut);
+  for (uint32_t r = 1; r < plan.rounds; ++r) {
+    d.prepare_round();
+    d.apply_cut(plan.cut);
+  }
+}
+
+// Candidates kept for an exact cut: the prefix removing at most `needed` faces and the
+// cheapest single-face candidate (all exact_cut can use from this list).
+std::vector<Candidate> trim_for_exact_cut(std::vector<Candidate> owned, uint64_t needed) {
+  uint64_t removed = 0;
+  size_t keep = 0;
+  while (keep < owned.size() && removed + owned[keep].faces_removed <= needed) removed += owned[keep++].faces_removed;
+  std::optional<Candidate> single;
+  for (size_t i = keep; i < owned.size(); ++i)
+    if (owned[i].faces_removed == 1) {
+      single = owned[i];
+      break;
+    }
+  owned.resize(keep);
+  if (single) owned.push_back(*single);
+  return owned;
+}
+
+struct Runner {
+  Job& job;
+  ScratchStore& scratch;
+  const OocOptions& options;
+  OocStats& stats;
+  uint32_t patches = 1;
+  int rings = 0;
+  std::vector<double> margin_factor;
+  std::vector<Box> owner_box;
+  std::vector<double> owner_edge;  // mean edge length of the owned faces
+  std::vector<uint64_t> owner_faces;
+
+  void index_state(const MeshState& state) {
+    owner_box.assign(patches, Box{});
+    std::vector<double> edge_sum(patches, 0.0);
+    owner_faces.assign(patches, 0);
+    for (const auto& c : state.chunks) {
+      owner_box[c.meta.owner].add(c.meta.box);
+      edge_sum[c.meta.owner] += c.meta.edge_sum;
+      owner_faces[c.meta.owner] += c.meta.faces;
+    }
+    owner_edge.assign(patches, 0.0);
+    for (uint32_t p = 0; p < patches; ++p)
+      owner_edge[p] = owner_faces[p] ? edge_sum[p] / double(3 * owner_faces[p]) : 0.0;
+  }
+
+  Lease patch_lease(uint64_t faces) {
+    const uint64_t want = std::min<uint64_t>(faces * kPatchBytesPerFace, job.governor().capacity());
+    return job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
+  }
+
+  // One pass over the patches: each runs `plan` and exports its owned faces into `next`
+  // (unless `candidates` is given: then it only collects its exact-cut candidates).
+  RoundSummary pass(const MeshState& state, MeshState* next, const PatchPlan& plan, const DecimateParams& params,
+                    std::vector<std::vector<Candidate>>* candidates, uint64_t needed, double progress_from,
+                    double progress_to) {
+    RoundSummary total;
+    for (uint32_t p = 0; p < patches; ++p) {
+      if (owner_faces[p] == 0) continue;
+      for (;;) {
+        job.check();
+        const double margin = (rings + 2) * owner_edge[p] * margin_factor[p];
+        const Box box = owner_box[p].grown(margin);
+        Lease lease = patch_lease(owner_faces[p] * 2);
+        Gathered g = load_candidates(job, scratch, state, p, box, false);
+        if (g.faces.size() * kPatchBytesPerFace > lease.bytes())
+          lease.try_grow(g.faces.size() * kPatchBytesPerFace - lease.bytes());
+        BuiltPatch built = build_patch(g, p, rings, false);
+        g = {};
+        if (built.margin_too_small) {
+          margin_factor[p] *= 2;
+          ++stats.margin_redos;
+          continue;
+        }
+        stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
+        bool ok = true;
+        RoundSummary summary;
+        std::vector<Candidate> owned;
+        std::optional<PatchOutput> out;
+        job.arena().execute([&] {
+          PatchDecimator d(std::move(built.input), params);
+          run_patch_plan(d, plan);
+          d.prepare_round();
+          summary = d.summarize();
+          if (candidates) owned = trim_for_exact_cut(d.owned_candidates(), needed);
+          if (summary.inexact_candidates) {
+            ok = false;
+            return;
+          }
+          if (next) {
+            out = d.extract();
+            if (out->untrusted_vertices) ok = false;
+          }
+        });
+        if (!ok) {
+          rings += 2;
+          ++stats.halo_redos;
+          stats.max_rings = std::max(stats.max_rings, rings);
+          continue;
+        }
+        total.add(summary);
+        if (candidates) (*candidates).push_back(std::move(owned));
+        if (next) export_patch(*out, p, *next);
+        break;
+      }
+      job.progress(progress_from + (progress_to - progress_from) * double(p + 1) / patches, "epochs");
+    }
+    if (next) finish_state(job, scratch, *next);
+    return total;
+  }
+
+  void export_patch(const PatchOutput& out, uint32_t p, MeshState& next) {
+    std::vector<FaceRecord> faces(out.faces.size());
+    Box box;
+    for (const auto& pos : out.positions) box.add(pos);
+    std::vector<std::pair<uint32_t, uint32_t>> order(out.faces.size());
+    for (size_t f = 0; f < out.faces.size(); ++f) {
+      const auto& t = out.faces[f];
+      faces[f] = {out.face_gids[f], {out.vertex_gids[t[0]], out.vertex_gids[t[1]], out.vertex_gids[t[2]]}, p, 0};
+      Point c{};
+      for (uint32_t v : t)
+        for (int k = 0; k < 3; ++k) c[k] += out.positions[v][k] / 3;
+      order[f] = {morton(c, box), uint32_t(f)};
+    }
+    std::sort(order.begin(), order.end());
+    std::vector<FaceRecord> sorted(faces.size());
+    for (size_t i = 0; i < order.size(); ++i) sorted[i] = faces[order[i].second];
+    faces = {};
+    auto vertex_of = [&](uint64_t gid) {
+      const auto it = std::lower_bound(out.vertex_gids.begin(), out.vertex_gids.end(), gid);
+      const size_t i = size_t(it - out.vertex_gids.begin());
+      VertexRecord r;
+      r.gid = gid;
+      r.position = out.positions[i];
+      r.quadric = out.quadrics[i];
+      r.degree = out.degrees[i];
+      r.locked = out.locked[i];
+      r.has_quadric = 1;
+      return r;
+    };
+    write_faces_as_chunks(job, scratch, next, p, sorted, options.chunk_faces, vertex_of);
+    job.io().drain();
+    job.check();
+  }
+};
+
+}  // namespace
+
+Partition slab_partition(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, uint32_t patches) {
+  Partition part;
+  part.patches = std::max<uint32_t>(1, patches);
+  int axis = 0;
+  for (int k = 1; k < 3; ++k)
+    if (mesh.grid.max[k] - mesh.grid.min[k] > mesh.grid.max[axis] - mesh.grid.min[axis]) axis = k;
+  const double lo = mesh.grid.min[axis], hi = mesh.grid.max[axis];
+  constexpr size_t kBins = 1 << 14;
+  auto bin_of = [lo, hi](double x) {
+    const double t = hi > lo ? (x - lo) / (hi - lo) : 0.0;
+    return size_t(std::clamp(t * double(kBins), 0.0, double(kBins - 1)));
+  };
+  std::vector<uint64_t> hist(kBins, 0);
+  std::vector<FrameRef> frames;
+  for (const auto& b : mesh.blocks) frames.insert(frames.end(), b.begin(), b.end());
+  engine::for_each_frame(
+      job, scratch, "partition", "block frames", frames, mesh.block_record_size, {},
+      [&](const FrameHeader& header, Bytes& records, Lease&) {
+        std::vector<engine::BlockFace> faces(header.count);
+        engine::unpack_block_faces(records.data(), header.count, mesh.block_record_size, faces.data());
+        for (const auto& f : faces)
+          ++hist[bin_of((f.positions[0][axis] + f.positions[1][axis] + f.positions[2][axis]) / 3)];
+      },
+      0);
+  // Bin → patch by cumulative count (whole bins, so the rule is a pure function of x).
+  auto bin_owner = std::make_shared<std::vector<uint32_t>>(kBins);
+  uint64_t cumulative = 0;
+  for (size_t b = 0; b < kBins; ++b) {
+    (*bin_owner)[b] = uint32_t(std::min<uint64_t>(part.patches - 1, cumulative * part.patches / std::max<uint64_t>(1, mesh.face_count)));
+    cumulative += hist[b];
+  }
+  part.owner = [bin_owner, bin_of, axis](const Point& bary) { return (*bin_owner)[bin_of(bary[axis])]; };
+  return part;
+}
+
+OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const OocOptions& options) {
+  OocResult result;
+  OocStats& st = result.stats;
+  st.input_faces = mesh.face_count;
+  st.input_vertices = mesh.vertex_count;
+  st.target_faces = target_face_count(mesh.face_count, options.simplify);
+  const EpochOptions epoch = epoch_options(options.simplify);
+  const uint64_t capacity = job.governor().capacity();
+  const uint64_t in_core_faces =
+      options.in_core_faces ? options.in_core_faces : uint64_t(0.8 * double(capacity)) / kInCoreBytesPerFace;
+
+  // Patches: each (owned + halo, about 1.5x owned) fits half the capacity.
+  uint32_t patches = options.patches;
+  if (patches == 0) {
+    const uint64_t per_patch = std::max<uint64_t>(1, uint64_t(0.5 * double(capacity)) / (kPatchBytesPerFace * 3 / 2));
+    patches = uint32_t(std::max<uint64_t>(2, (mesh.face_count + per_patch - 1) / per_patch));
+  }
+  Partition partition;
+  {
+    engine::StageTimer timer(job, "partition");
+    partition = options.partition ? options.partition(job, scratch, mesh, patches) : slab_partition(job, scratch, mesh, patches);
+  }
+  st.patches = partition.patches;
+
+  auto state = std::make_unique<MeshState>();
+  state->file = scratch.create_file("state-0");
+  {
+    Lease degree_lease;
+    std::vector<uint32_t> degree;
+    {
+      engine::StageTimer timer(job, "convert");
+      degree = count_degrees(job, scratch, mesh, degree_lease);
+    }
+    convert_blocks(job, scratch, mesh, partition, degree, options.chunk_faces, *state);
+  }
+
+  Runner runner{job, scratch, options, st};
+  runner.patches = partition.patches;
+  runner.rings = options.initial_rings ? options.initial_rings
+                                       : int(kTrustSpread * epoch.epoch_rounds + kDecisionRadius + 2);
+  runner.margin_factor.assign(partition.patches, 1.5);
+  st.max_rings = runner.rings;
+
+  DecimateParams params = options.simplify.params;
+  bool relaxed = !(params.min_normal_cos > 0.0);
+  bool first = true;
+  RoundSummary summary;
+  uint32_t generation = 0;
+  auto new_state = [&] {
+    auto s = std::make_unique<MeshState>();
+    s->file = scratch.create_file("state-" + std::to_string(++generation));
+    return s;
+  };
+  auto replace_state = [&](std::unique_ptr<MeshState> next) {
+    const uint32_t old = state->file;
+    job.io().call("remove state", [&] { scratch.remove(old); });
+    state = std::move(next);
+  };
+  {
+    engine::StageTimer timer(job, "epochs");
+    while (state->faces > in_core_faces && state->faces > st.target_faces) {
+      runner.index_state(*state);
+      PatchPlan plan;
+      if (!first) {
+        const EpochPlan e = plan_epoch(summary, state->faces, st.target_faces, relaxed, epoch);
+        ++st.epochs;
+        if (e.kind == EpochPlan::Kind::stop) break;
+        if (e.kind == EpochPlan::Kind::relax) {
+          params = relaxed_params(params);
+          relaxed = true;
+        } else if (e.kind == EpochPlan::Kind::bin_cut) {
+          plan = {PatchPlan::Kind::bin_cut, e.cut, e.rounds};
+        } else {
+          std::vector<std::vector<Candidate>> lists;
+          runner.pass(*state, nullptr, {}, params, &lists, e.needed, 0.3, 0.3);
+          const std::vector<std::span<const Candidate>> spans(lists.begin(), lists.end());
+          const auto cut = exact_cut(spans, e.needed);
+          if (!cut) break;
+          plan = {PatchPlan::Kind::exact_cut, *cut, 1};
+        }
+      }
+      auto next = new_state();
+      const double done = std::min(1.0, double(st.input_faces - state->faces) /
+                                            double(std::max<uint64_t>(1, st.input_faces - st.target_faces)));
+      summary = runner.pass(*state, next.get(), plan, params, nullptr, 0, 0.3 + 0.6 * done, 0.3 + 0.6 * done);
+      st.rounds += plan.kind == PatchPlan::Kind::summary_only ? 0 : plan.rounds;
+      ++st.ooc_epochs;
+      first = false;
+      replace_state(std::move(next));
+      engine::trim_allocator();
+    }
+  }
+
+  // Finish in core: the whole state as one patch (nothing incomplete, all owned).
+  engine::StageTimer timer(job, "in core");
+  st.in_core_faces = state->faces;
+  runner.index_state(*state);
+  Lease lease = job.governor().acquire(job.owner("in core"),
+                                       std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
+                                       std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
+                                       [&] { return job.stopped(); });
+  Gathered g = load_candidates(job, scratch, *state, 0, Box{}, true);
+  BuiltPatch built = build_patch(g, 0, 0, true);
+  g = {};
+  replace_state(new_state());
+  job.arena().execute([&] {
+    PatchDecimator d(std::move(built.input), params);
+    if (first || true) {
+      const EpochRunStats run = run_epochs(d, st.target_faces, epoch);
+      st.rounds += run.rounds;
+      st.epochs += run.epochs;
+    }
+    PatchOutput out = d.extract();
+    result.points.resize(out.positions.size());
+    for (size_t i = 0; i < out.positions.size(); ++i) result.points[i] = out.positions[i];
+    result.triangles.resize(out.faces.size());
+    for (size_t i = 0; i < out.faces.size(); ++i)
+      result.triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
+  });
+  st.output_faces = result.triangles.size();
+  st.output_vertices = result.points.size();
+  return result;
+}
+
+}  // namespace qemflow::nodes::pipeline

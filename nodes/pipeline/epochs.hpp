@@ -1,0 +1,114 @@
+#pragma once
+// The out-of-core simplification pipeline (docs: /work/notes/ooc.md, DESIGN.md §2-5):
+//
+//   input ──loader──► blocks ──convert (owner per face, degrees)──► mesh state (scratch)
+//   mesh state ──epoch pass: per patch gather owned + BFS halo, PatchDecimator runs the
+//     epoch's rounds with the global plan, trust check (redo with a deeper halo), export
+//     owned faces + vertex states, summary──► next mesh state; plan_epoch(summed summaries)
+//   once the state fits the budget ──finish in core (one patch, run_epochs)──► output
+//
+// Contract
+// - Equal to the in-core reference (nodes/decimate/simplify.hpp, no weld difference once
+//   the loader welds): the same epoch schedule of G, each epoch's global plan from the
+//   patches' summed summaries (exact integer sums), every owned face's state checked
+//   trusted (decimator.hpp: trust), so the owned outputs are the global mesh's. The
+//   output (vertices sorted by global id, faces by face id) is written with the same
+//   writer options as the in-core command, so the files are byte-identical.
+// - The mesh state between epochs lives in scratch as chunks: one zstd frame per chunk
+//   holding face records {fid, 3 vertex gids, owner} and the records of their vertices
+//   {gid, position, quadric, degree, lock}; every chunk holds faces of one owner.
+// - A patch's halo: faces within `rings` rings of its owned faces, found by BFS over
+//   the faces of the chunks whose box meets the owned box grown by a margin; a vertex
+//   whose fan is not whole in what was loaded (loaded faces < degree) may not be
+//   expanded: then the margin doubles and the patch is gathered again.
+// - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
+//   vertex): the ring count grows and the patch is redone (counted: halo_redos).
+// - Memory: every buffer of a patch is under one governor lease sized from measured
+//   bytes per face; the whole run stays under the governor's budget.
+// - All scratch and output I/O goes through the job's I/O thread.
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "engine/blocks.hpp"
+#include "engine/governor.hpp"
+#include "engine/job.hpp"
+#include "engine/scratch.hpp"
+#include "nodes/decimate/simplify.hpp"
+
+namespace qemflow::nodes::pipeline {
+
+// Owner patch of a face from its barycenter (the partition stage's classifier).
+using OwnerFunction = std::function<uint32_t(const Point& barycenter)>;
+struct Partition {
+  uint32_t patches = 1;
+  OwnerFunction owner;
+};
+// Builds the partition from the loaded blocks (a real one: nodes/pipeline/partition_stage).
+using PartitionBuilder =
+    std::function<Partition(engine::Job&, engine::ScratchStore&, const engine::LoadedMesh&, uint32_t patches)>;
+
+// Stand-in partition until the classifier lands: slabs of equal face counts along the
+// longest axis of the blocks' box (one pass over the blocks for a histogram).
+Partition slab_partition(engine::Job& job, engine::ScratchStore& scratch, const engine::LoadedMesh& mesh,
+                         uint32_t patches);
+
+struct OocOptions {
+  SimplifyOptions simplify;          // target, epoch options, decimator params (weld: loader's)
+  uint32_t patches = 0;              // 0: from the budget
+  PartitionBuilder partition;        // empty: slab_partition
+  // Finish in core once the state has at most this many faces; 0: from the budget.
+  // Tests set 1 to keep the out-of-core epochs going to the end.
+  uint64_t in_core_faces = 0;
+  int initial_rings = 0;             // 0: kTrustSpread * E + kDecisionRadius + 2
+  uint64_t chunk_faces = 8192;       // faces per state chunk
+};
+
+struct OocStats {
+  uint64_t input_faces = 0, input_vertices = 0, target_faces = 0;
+  uint64_t output_faces = 0, output_vertices = 0;
+  uint32_t patches = 0;
+  uint64_t epochs = 0;               // global plans (out of core + in core)
+  uint64_t ooc_epochs = 0;           // passes over the patches
+  uint64_t rounds = 0;
+  uint64_t halo_redos = 0, margin_redos = 0;
+  int max_rings = 0;
+  uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)
+  uint64_t patch_faces_max = 0;      // largest patch (owned + halo)
+};
+
+struct OocResult {
+  std::vector<Point> points;         // sorted by global id
+  std::vector<Triangle> triangles;   // sorted by face id
+  OocStats stats;
+};
+
+// The epoch loop and the finish on a loaded mesh (blocks in `scratch`).
+OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const engine::LoadedMesh& mesh,
+                          const OocOptions& options);
+
+// Measured bytes per face (owned + halo) of a patch while it is gathered and decimated,
+// and of the in-core finish; the budget rules use them.
+inline constexpr uint64_t kPatchBytesPerFace = 520;
+inline constexpr uint64_t kInCoreBytesPerFace = 520;
+
+// The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured
+// baseline), job, scratch, load, simplify_blocks, write (same bytes as --in-core),
+// report. Throws qemflow::Error (bad_input, resource, cancelled); nothing is left in
+// scratch and no output exists after a failure.
+struct OocCommand {
+  std::filesystem::path input, output, scratch_dir, trace_path, report_path;
+  uint64_t mem_budget = 0;  // 0: half the physical memory
+  int threads = 0;
+  bool quiet = false;
+  bool double_precision = false;  // as `--double`
+  OocOptions options;
+};
+nlohmann::json run_ooc_command(const OocCommand& command);
+
+}  // namespace qemflow::nodes::pipeline

@@ -1,0 +1,111 @@
+// run_ooc_command: the out-of-core `qemflow simplify` wired in one function (as
+// engine/reencode.cpp does for --ratio 1): governor, job, scratch, load, epochs, write.
+#include <unistd.h>
+
+#include <cstdio>
+
+#include "config/size.hpp"
+#include "engine/process_memory.hpp"
+#include "engine/progress_bar.hpp"
+#include "engine/reencode.hpp"
+#include "engine/report.hpp"
+#include "io/indexed_mesh.hpp"
+#include "nodes/pipeline/epochs.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::nodes::pipeline {
+
+nlohmann::json run_ooc_command(const OocCommand& command) {
+  engine::tune_allocator();
+  uint64_t budget = command.mem_budget;
+  if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
+  engine::Governor governor(budget, engine::measure_baseline());
+  engine::ProgressBar bar(command.quiet);
+  engine::JobSettings settings;
+  settings.threads = command.threads;
+  settings.trace_events = command.trace_path.empty() ? 0 : (1 << 18);
+  engine::Job job(governor, {.progress = bar.callback(), .cancel = {}}, settings);
+  nlohmann::json report;
+  auto write_trace = [&] {
+    if (!command.trace_path.empty()) job.trace().write(command.trace_path);
+  };
+  try {
+    std::error_code ec;
+    const uint64_t input_bytes = std::filesystem::file_size(command.input, ec);
+    if (ec) throw Error(ErrorKind::bad_input, command.input.string() + ": cannot read: " + ec.message());
+    // State chunks carry quadrics: several times the block size at the first epochs.
+    engine::ScratchStore scratch(command.scratch_dir,
+                                 2 * engine::expected_scratch_bytes(input_bytes, command.input.extension() == ".zst"));
+    struct DrainIo {
+      engine::Job& job;
+      ~DrainIo() { job.io().drain(); }
+    } drain_before_scratch_goes{job};
+    engine::LoadedMesh mesh;
+    {
+      engine::StageTimer timer(job, "load");
+      mesh = engine::load_into_blocks(job, scratch, command.input, {});
+    }
+    mesh.vertices.resident = {};
+    mesh.resident_lease.release();
+    OocResult result = simplify_blocks(job, scratch, mesh, command.options);
+    {
+      engine::StageTimer timer(job, "write");
+      const uint64_t bytes = result.points.size() * 24 + result.triangles.size() * 24;
+      engine::Lease lease = job.governor().acquire(job.owner("output"), std::min(bytes, governor.capacity()),
+                                                   std::min(bytes, governor.capacity()));
+      io::IndexedMesh out{std::move(result.points), std::move(result.triangles)};
+      io::WriteOptions write_options;
+      write_options.double_precision = command.double_precision;
+      job.io().call("write output", [&] { io::write_mesh(command.output, out, write_options); });
+      std::error_code size_ec;
+      job.stage("write").bytes_written = std::filesystem::file_size(command.output, size_ec);
+    }
+    job.progress(1.0, "done");
+    const OocStats& st = result.stats;
+    report = engine::job_report(job, governor);
+    report["command"] = "simplify";
+    report["mode"] = "out-of-core";
+    report["input"] = command.input.string();
+    report["output"] = command.output.string();
+    report["input_vertices"] = st.input_vertices;
+    report["input_faces"] = st.input_faces;
+    report["target_faces"] = st.target_faces;
+    report["output_vertices"] = st.output_vertices;
+    report["output_faces"] = st.output_faces;
+    report["patches"] = st.patches;
+    report["epochs"] = st.epochs;
+    report["out_of_core_epochs"] = st.ooc_epochs;
+    report["rounds"] = st.rounds;
+    report["halo_redos"] = st.halo_redos;
+    report["margin_redos"] = st.margin_redos;
+    report["halo_rings"] = st.max_rings;
+    report["in_core_faces"] = st.in_core_faces;
+    report["largest_patch_faces"] = st.patch_faces_max;
+    report["scratch_bytes_written"] = scratch.bytes_written();
+    report["scratch_bytes_read"] = scratch.bytes_read();
+    report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
+    report["input_bytes"] = input_bytes;
+    report["out_of_core_dereference"] = mesh.out_of_core;
+  } catch (...) {
+    try {
+      write_trace();
+    } catch (...) {
+    }
+    throw;
+  }
+  write_trace();
+  bar.finish();
+  if (!command.report_path.empty()) engine::write_json(command.report_path, report);
+  if (!command.quiet) {
+    std::fprintf(stderr, "qemflow: %llu -> %llu faces, %u patches, %llu epochs (%llu out of core), %llu rounds, %llu halo redos | %s\n",
+                 (unsigned long long)report.value("input_faces", uint64_t(0)),
+                 (unsigned long long)report.value("output_faces", uint64_t(0)), report.value("patches", 0u),
+                 (unsigned long long)report.value("epochs", uint64_t(0)),
+                 (unsigned long long)report.value("out_of_core_epochs", uint64_t(0)),
+                 (unsigned long long)report.value("rounds", uint64_t(0)),
+                 (unsigned long long)report.value("halo_redos", uint64_t(0)), engine::format_summary(report).c_str());
+  }
+  return report;
+}
+
+}  // namespace qemflow::nodes::pipeline
