@@ -1,7 +1,9 @@
-// `qemflow simplify IN OUT (--target-faces N | --ratio R) --in-core [--threads N]
-//  [--no-weld] [--report FILE.json] [--quiet]`: the in-core reference run of the
-// decimator (nodes/decimate/simplify.hpp). The out-of-core pipeline will share this
-// command; until it lands every run is in core.
+// `qemflow simplify IN OUT (--target-faces N | --ratio R) [--in-core] [--mem-budget SIZE]
+//  [--clusters N|auto] [--scratch DIR] [--trace FILE] [--threads N] [--no-weld]
+//  [--report FILE.json] [--quiet]`: --in-core runs the in-core reference of the
+// decimator (nodes/decimate/simplify.hpp); --ratio 1 re-encodes through the engine;
+// everything else runs the out-of-core pipeline (nodes/pipeline/epochs.hpp), which
+// finishes in core once the mesh fits the budget.
 #include <sys/resource.h>
 #include <tbb/global_control.h>
 #include <tbb/info.h>
@@ -15,6 +17,9 @@
 #include <string>
 
 #include "apps/qemflow/commands.hpp"
+#include "config/size.hpp"
+#include "engine/reencode.hpp"
+#include "nodes/pipeline/epochs.hpp"
 #include "io/indexed_mesh.hpp"
 #include "nodes/decimate/simplify.hpp"
 #include "util/error.hpp"
@@ -24,6 +29,9 @@ namespace {
 
 struct SimplifyArgs {
   std::string input, output, report;
+  std::string mem_budget, scratch, trace;
+  std::string clusters = "auto";
+  uint64_t in_core_faces = 0;
   std::optional<uint64_t> target_faces;
   std::optional<double> ratio;
   int threads = 0;
@@ -47,6 +55,36 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
 void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
     throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
+  const uint64_t mem_budget = args.mem_budget.empty() ? 0 : config::parse_size(args.mem_budget);
+  if (args.ratio && *args.ratio == 1.0 && !args.in_core) {
+    engine::run_reencode_command({.input = args.input, .output = args.output, .scratch_dir = args.scratch,
+                                  .trace_path = args.trace, .report_path = args.report,
+                                  .mem_budget = mem_budget, .threads = args.threads, .quiet = args.quiet});
+    return;
+  }
+  if (!args.in_core) {
+    nodes::pipeline::OocCommand command;
+    command.input = args.input;
+    command.output = args.output;
+    command.scratch_dir = args.scratch;
+    command.trace_path = args.trace;
+    command.report_path = args.report;
+    command.mem_budget = mem_budget;
+    command.threads = args.threads;
+    command.quiet = args.quiet;
+    command.double_precision = args.double_precision;
+    auto& o = command.options;
+    o.simplify.target_faces = args.target_faces;
+    o.simplify.ratio = args.ratio;
+    o.simplify.round_fraction = args.round_fraction;
+    o.simplify.candidate_fraction = args.candidate_fraction;
+    o.simplify.epoch_rounds = args.epoch_rounds;
+    o.simplify.params = args.params;
+    o.patches = args.clusters == "auto" ? 0 : uint32_t(std::stoul(args.clusters));
+    o.in_core_faces = args.in_core_faces;
+    nodes::pipeline::run_ooc_command(command);
+    return;
+  }
   std::optional<tbb::global_control> limit;
   if (args.threads > 0) limit.emplace(tbb::global_control::max_allowed_parallelism, args.threads);
   const int threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
@@ -134,6 +172,13 @@ void add_simplify_command(CLI::App& root, Run& run) {
   ratio->excludes(target);
   cmd->add_flag("--in-core", args->in_core, "simplify the whole mesh in memory (one patch)");
   cmd->add_option("--threads", args->threads, "worker threads (default: all cores)");
+  cmd->add_option("--mem-budget", args->mem_budget,
+                  "peak memory of the out-of-core run, e.g. 512M, 4G (default: half the RAM)");
+  cmd->add_option("--scratch", args->scratch, "directory for scratch files (default: the system temp dir)");
+  cmd->add_option("--trace", args->trace, "write a Chrome trace-event JSON of the run");
+  cmd->add_option("--clusters", args->clusters, "patches of the out-of-core run (default: from the budget)");
+  cmd->add_option("--in-core-faces", args->in_core_faces,
+                  "testing: finish in core at this many faces (default: when the mesh fits the budget)");
   cmd->add_flag("--no-weld", args->no_weld, "keep vertices at identical positions apart");
   cmd->add_option("--report", args->report, "write a JSON report to this file");
   cmd->add_flag("--quiet", args->quiet, "no summary line on stderr");
