@@ -14,7 +14,24 @@
 //   the other faces' corners are bucketed by chunk, each chunk is loaded in turn to
 //   resolve its corners, and resolved corners are regrouped by face-id range to
 //   rebuild those faces.
-// Either way faces keep their input id and vertices their input index.
+// Either way faces keep their input id.
+//
+// What the simplifier sees (the same as the in-core run, nodes/decimate/simplify.cpp):
+// - weld (LoadOptions::weld): a face's vertex ids are welded ids: the smallest input
+//   index among the vertices at exactly its position (== per coordinate, so -0.0
+//   equals 0.0; NaN never welds). Resident: sorted in memory; out of core: (position,
+//   index) records spilled by position-hash bucket and sorted per bucket. Either way
+//   only the duplicates (index → representative) are kept, sorted, with one bit per
+//   vertex to find them.
+// - drop (LoadOptions::drop_repeated_vertex_faces): faces with a repeated welded
+//   vertex (zero area) are not written to the blocks; LoadedMesh::dropped_faces
+//   counts them (the in-core PatchDecimator drops the same faces).
+// - degree (LoadOptions::degrees): each record carries, per corner, the number of
+//   kept faces around that welded vertex in the whole mesh (a byte per vertex,
+//   saturating, with the rare larger counts kept exactly on the side). Resident: the
+//   faces are read twice from the input (count, then make records); out of core:
+//   counted from the face spills before the dereference makes the records.
+// Positions are always those of the input index, equal to the representative's.
 // Memory: every buffer is sized from a lease of the governor; the loader refuses up
 // front (Error(resource)) a budget below its minimum.
 #include <array>
@@ -33,8 +50,10 @@ struct BlockFace {
   uint64_t id = 0;                 // global face id (input triangle order)
   Triangle vertices{};             // global vertex indices
   std::array<Point, 3> positions{};
+  std::array<uint32_t, 3> degree{};  // kept faces around each corner's vertex (0: not counted)
+  uint32_t unused = 0;
 };
-static_assert(sizeof(BlockFace) == 104);
+static_assert(sizeof(BlockFace) == 120);
 
 // The same face as stored when every input coordinate is a float (the usual case):
 // positions as float, exactly. A third less to compress, store and decompress.
@@ -42,9 +61,9 @@ struct PackedBlockFace {
   uint64_t id = 0;
   Triangle vertices{};
   std::array<float, 9> positions{};
-  uint32_t unused = 0;
+  std::array<uint32_t, 3> degree{};
 };
-static_assert(sizeof(PackedBlockFace) == 72);
+static_assert(sizeof(PackedBlockFace) == 80);
 
 // Block records of either layout (record_size says which) to BlockFaces.
 void unpack_block_faces(const std::byte* records, uint64_t count, uint32_t record_size, BlockFace* out);
@@ -74,16 +93,27 @@ struct LoadOptions {
   uint64_t window_vertices = 0;
   uint64_t range_faces = 0;
   bool force_out_of_core = false;
+  bool weld = true;                        // --no-weld: false
+  bool drop_repeated_vertex_faces = true;  // as the decimator does
+  bool degrees = true;                     // count BlockFace::degree
+  // Re-encode: the input as it is (no weld, every face, no degree pass).
+  static LoadOptions verbatim(LoadOptions options) {
+    options.weld = options.drop_repeated_vertex_faces = options.degrees = false;
+    return options;
+  }
 };
 
 struct LoadedMesh {
   uint64_t vertex_count = 0;
-  uint64_t face_count = 0;
+  uint64_t face_count = 0;      // input faces (ids are 0..face_count-1)
+  uint64_t dropped_faces = 0;   // faces with a repeated welded vertex, not in the blocks
+  uint64_t welded_vertices = 0; // vertices that are not their own representative
+  uint64_t kept_faces() const { return face_count - dropped_faces; }
   bool float_exact = true;  // every coordinate is a float (the input was float)
   BlockGrid grid;
   std::vector<std::vector<FrameRef>> blocks;  // frames of block records per cell
   uint32_t block_record_size = sizeof(BlockFace);  // or sizeof(PackedBlockFace)
-  std::vector<uint64_t> block_faces;          // faces per cell
+  std::vector<uint64_t> block_faces;          // (kept) faces per cell
   VertexStore vertices;
   uint64_t input_bytes = 0;
   bool out_of_core = false;

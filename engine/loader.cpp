@@ -5,6 +5,9 @@
 #include <cstring>
 #include <limits>
 #include <optional>
+#include <unordered_map>
+
+#include <oneapi/tbb/parallel_sort.h>
 
 #include "config/size.hpp"
 #include "engine/blocks.hpp"
@@ -13,6 +16,7 @@
 #include "engine/stream_pass.hpp"
 #include "io/mesh_stream.hpp"
 #include "util/error.hpp"
+#include "util/hash.hpp"
 
 namespace qemflow::engine {
 
@@ -32,9 +36,77 @@ struct ResolvedCorner {
   Point position;
 };
 
+// Weld keys: the bits of each coordinate with -0.0 as 0.0. Equal keys are equal
+// positions (==) unless a coordinate is NaN, which never welds (as in core).
+using PositionKey = std::array<uint64_t, 3>;
+PositionKey position_key(const Point& p) {
+  PositionKey key;
+  for (int k = 0; k < 3; ++k) {
+    double x = p[k] == 0.0 ? 0.0 : p[k];
+    std::memcpy(&key[k], &x, sizeof x);
+  }
+  return key;
+}
+bool weldable(const Point& p) { return !std::isnan(p[0]) && !std::isnan(p[1]) && !std::isnan(p[2]); }
+uint32_t weld_bucket(const Point& p, uint32_t buckets) {
+  PositionKey k = position_key(p);
+  return uint32_t(mix64(k[0] ^ mix64(k[1] ^ mix64(k[2] + 0x9E3779B97F4A7C15ull))) % buckets);
+}
+struct WeldRecord {
+  Point position;
+  uint64_t index;
+};
+
+// Welded ids: only the duplicates (index → representative, sorted by index) and a bit
+// per vertex marking them. Read-only once finished (any thread).
+struct WeldMap {
+  std::vector<uint64_t> bits;
+  std::vector<std::pair<uint64_t, uint64_t>> duplicates;
+  void finish(uint64_t vertex_count) {
+    std::sort(duplicates.begin(), duplicates.end());
+    bits.assign((vertex_count + 63) / 64, 0);
+    for (const auto& d : duplicates) bits[d.first >> 6] |= uint64_t{1} << (d.first & 63);
+  }
+  // Over n vertices sorted by (position, index): each one at the position of its
+  // predecessor maps to the first of its run.
+  template <class PositionAt, class IndexAt>
+  void add_runs(uint64_t n, PositionAt position_at, IndexAt index_at) {
+    uint64_t first = 0;
+    for (uint64_t i = 1; i < n; ++i) {
+      const Point p = position_at(i);
+      if (weldable(p) && position_key(p) == position_key(position_at(first))) {
+        duplicates.emplace_back(index_at(i), index_at(first));
+      } else {
+        first = i;
+      }
+    }
+  }
+  uint64_t operator()(uint64_t v) const {
+    if (bits.empty() || !((bits[v >> 6] >> (v & 63)) & 1)) return v;
+    return std::lower_bound(duplicates.begin(), duplicates.end(), std::pair<uint64_t, uint64_t>{v, 0})->second;
+  }
+};
+
+// Faces around each welded vertex: a byte per vertex, saturating at 255; the exact
+// count of those few is kept on the side. Counted by one thread (a sink).
+struct DegreeCounter {
+  std::vector<uint8_t> low;
+  std::unordered_map<uint64_t, uint32_t> high;
+  void add(uint64_t v) {
+    if (low[v] < 255) {
+      if (++low[v] == 255) high[v] = 255;
+    } else {
+      ++high[v];
+    }
+  }
+  uint32_t operator[](uint64_t v) const { return low[v] < 255 ? low[v] : high.at(v); }
+};
+
+bool repeated(const Triangle& t) { return t[0] == t[1] || t[1] == t[2] || t[0] == t[2]; }
+
 // Lease per element of an input batch: the batch itself (24 bytes per vertex or
 // triangle) plus what the transform makes of it (a compressed vertex frame, or a block
-// record of up to 104 bytes and its cell) plus the reader library's own buffers.
+// record of up to 120 bytes and its cell) plus the reader library's own buffers.
 constexpr uint64_t bytes_per_input_element = 160;
 constexpr uint64_t min_input_lease = 64 * bytes_per_input_element;
 constexpr uint64_t max_input_lease = 4ull << 20;
@@ -85,6 +157,7 @@ struct InputItem {
   std::vector<std::pair<uint64_t, Bytes>> vertex_frames;  // (window, frame)
   Bytes block_records;                                    // faces made into block records
   std::vector<uint32_t> cells;                            // and their cells
+  uint64_t dropped = 0;                                   // faces with a repeated welded vertex
 };
 
 // The input reader, driven from the I/O thread only.
@@ -234,15 +307,16 @@ class Loader {
     return take(owner, std::min(bytes, std::max(min, reserve_.bytes())));
   }
 
-  StreamPass<InputItem> input_pass() {
+  // Reads with `read`: the whole input (default), its vertices or its faces.
+  StreamPass<InputItem> input_pass(bool (InputStream::*read)(InputItem&, Lease&) = &InputStream::read) {
     StreamPass<InputItem> pass;
     pass.stage = "load";
     pass.read_name = "read input";
     pass.owner = "input batches";
     pass.min_item_bytes = min_input_lease;
     pass.max_item_bytes = std::clamp<uint64_t>(capacity_ / 24, min_input_lease, max_input_lease);
-    pass.read = [this](InputItem& item, Lease& lease) {
-      bool more = input_.read(item, lease);
+    pass.read = [this, read](InputItem& item, Lease& lease) {
+      bool more = (input_.*read)(item, lease);
       report_read_progress();
       return more;
     };
@@ -251,7 +325,7 @@ class Loader {
 
   void report_read_progress() {
     job_.stage("load").bytes_read = input_.reader->bytes_read();
-    if (input_.size) job_.progress(progress_span_ * double(input_.reader->bytes_read()) / double(input_.size), "load");
+    if (input_.size) job_.progress(progress_base_ + progress_span_ * double(input_.reader->bytes_read()) / double(input_.size), "load");
   }
 
   void build_grid(uint64_t faces) {
@@ -275,6 +349,7 @@ class Loader {
       packed.id = face.id;
       packed.vertices = face.vertices;
       for (int k = 0; k < 9; ++k) packed.positions[k] = float(face.positions[k / 3][k % 3]);
+      packed.degree = face.degree;
       std::memcpy(out, &packed, sizeof packed);
     } else {
       std::memcpy(out, &face, sizeof face);
@@ -302,9 +377,101 @@ class Loader {
     }
   }
 
+  // A face's welded ids and degrees from its input ids (positions already set);
+  // false when it is dropped. Any thread, once the weld and the counts are done.
+  bool prepare(BlockFace& face, const Triangle& input_ids) const {
+    for (int k = 0; k < 3; ++k) face.vertices[k] = options_.weld ? weld_(input_ids[k]) : input_ids[k];
+    if (options_.drop_repeated_vertex_faces && repeated(face.vertices)) return false;
+    for (int k = 0; k < 3; ++k) face.degree[k] = degree_.low.empty() ? 0 : degree_[face.vertices[k]];
+    return true;
+  }
+  // The welded face, or nullopt when it is dropped (for counting).
+  std::optional<Triangle> welded(const Triangle& input_ids) const {
+    Triangle t;
+    for (int k = 0; k < 3; ++k) t[k] = options_.weld ? weld_(input_ids[k]) : input_ids[k];
+    if (options_.drop_repeated_vertex_faces && repeated(t)) return std::nullopt;
+    return t;
+  }
+
+  // Per-vertex state (weld bits and duplicates, degree bytes) is held for the whole
+  // load; refused up front when the budget cannot hold it.
+  void take_state(const char* what, uint64_t bytes) {
+    if (bytes > reserve_.bytes() / 2) {
+      throw Error(ErrorKind::resource, std::string("loader: ") + what + " needs " + config::format_size(bytes) +
+                                           ", more than the memory budget leaves for it (" +
+                                           config::format_size(reserve_.bytes() / 2) + ")");
+    }
+    state_lease_.merge(reserve_.split(bytes, job_.owner("loader vertex state")));
+  }
+
+  void finish_weld(uint64_t vertex_count) {
+    take_state("the weld's duplicate list", weld_.duplicates.size() * 16 + (vertex_count + 63) / 64 * 8);
+    weld_.finish(vertex_count);
+    mesh_.welded_vertices = weld_.duplicates.size();
+  }
+
+  // Resident weld: indices sorted by (position, index), runs of equal positions map
+  // to their first (smallest) index.
+  void weld_in_memory(const std::vector<Point>& positions) {
+    if (!options_.weld) return;
+    StageTimer timer(job_, "weld");
+    const uint64_t n = positions.size();
+    Lease order_lease = take("weld order", n * sizeof(uint64_t));
+    UninitializedVector<uint64_t> order(n);
+    for (uint64_t i = 0; i < n; ++i) order[i] = i;
+    job_.arena().execute([&] {
+      tbb::parallel_sort(order.begin(), order.end(), [&](uint64_t a, uint64_t b) {
+        PositionKey ka = position_key(positions[a]), kb = position_key(positions[b]);
+        return ka != kb ? ka < kb : a < b;
+      });
+    });
+    weld_.add_runs(n, [&](uint64_t i) { return positions[order[i]]; }, [&](uint64_t i) { return order[i]; });
+    order = {};
+    give_back(std::move(order_lease));
+    finish_weld(n);
+  }
+
+  void start_degrees(uint64_t vertex_count) {
+    take_state("the per-vertex face counts", vertex_count);
+    degree_.low.assign(vertex_count, 0);
+  }
+
+  // Resident: the input's faces (after its vertex pass), counted around welded vertices.
+  void count_degrees_from_input(uint64_t vertex_count) {
+    StageTimer timer(job_, "degrees");
+    start_degrees(vertex_count);
+    auto pass = input_pass(&InputStream::read_faces);
+        pass.transform = [&](InputItem& item, Lease&) {
+      auto& triangles = item.batch.triangles;
+      size_t kept = 0;
+      for (size_t i = 0; i < triangles.size(); ++i) {
+        for (uint64_t v : triangles[i]) {
+          if (v >= vertex_count) index_out_of_range(input_.path, item.batch.first_triangle + i, v, vertex_count);
+        }
+        if (auto t = welded(triangles[i])) triangles[kept++] = *t;
+      }
+      triangles.resize(kept);
+    };
+    pass.sink = [&](InputItem& item, Lease&) {
+      for (const Triangle& t : item.batch.triangles)
+        for (uint64_t v : t) degree_.add(v);
+    };
+    run_stream_pass(job_, pass);
+  }
+
+  // Opens the input again and reads through its vertices (the face pass follows).
+  void reopen_input_past_vertices() {
+    input_.reader = job_.io().call("open input", [&] { return io::open_mesh_reader(input_.path); });
+    input_.carried.reset();
+    input_.vertices_done = false;
+    progress_base_ += progress_span_;
+    auto pass = input_pass(&InputStream::read_vertices);
+        run_stream_pass(job_, pass);
+  }
+
   // All vertex positions in memory; faces resolved as they stream by.
   void load_resident(uint64_t vertex_count, uint64_t polygon_count) {
-    progress_span_ = 0.8;
+    progress_span_ = options_.degrees ? 0.4 : 0.8;
     Lease vertex_lease = take("vertex positions", vertex_count * sizeof(Point));
     auto& positions = mesh_.vertices.resident;
     positions.resize(vertex_count);
@@ -319,13 +486,8 @@ class Loader {
 
     StageTimer timer(job_, "load");
     // Pass A: vertices, copied in place (batches hold disjoint index ranges).
-    auto vertex_pass = input_pass();
-    vertex_pass.read = [this](InputItem& item, Lease& lease) {
-      bool more = input_.read_vertices(item, lease);
-      report_read_progress();
-      return more;
-    };
-    vertex_pass.transform = [&](InputItem& item, Lease&) {
+    auto vertex_pass = input_pass(&InputStream::read_vertices);
+        vertex_pass.transform = [&](InputItem& item, Lease&) {
       const auto& batch = item.batch;
       if (batch.first_vertex + batch.vertices.size() > vertex_count) {
         throw_bad_input(input_.path.string(), "vertex " + std::to_string(batch.first_vertex),
@@ -343,35 +505,43 @@ class Loader {
       throw_bad_input(input_.path.string(), "end of vertices",
                       "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");
     }
+    weld_in_memory(positions);
+    if (options_.degrees) {
+      count_degrees_from_input(vertex_count);
+      reopen_input_past_vertices();
+    }
     build_grid(polygon_count);
     blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(), std::move(block_lease),
                                            mesh_.grid.count(), "load");
 
     // Pass B: faces resolved and made into block records on every compute thread;
     // the sink only files them.
-    auto face_pass = input_pass();
-    face_pass.read = [this](InputItem& item, Lease& lease) {
-      bool more = input_.read_faces(item, lease);
-      report_read_progress();
-      return more;
-    };
-    face_pass.transform = [&](InputItem& item, Lease&) {
+    auto face_pass = input_pass(&InputStream::read_faces);
+        face_pass.transform = [&](InputItem& item, Lease&) {
       const auto& batch = item.batch;
       item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
       item.cells.resize(batch.triangles.size());
       BlockFace face;
+      size_t kept = 0;
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
         face.id = batch.first_triangle + i;
-        face.vertices = batch.triangles[i];
         for (int k = 0; k < 3; ++k) {
-          if (face.vertices[k] >= vertex_count) index_out_of_range(input_.path, face.id, face.vertices[k], vertex_count);
-          face.positions[k] = positions[face.vertices[k]];
+          uint64_t v = batch.triangles[i][k];
+          if (v >= vertex_count) index_out_of_range(input_.path, face.id, v, vertex_count);
+          face.positions[k] = positions[v];
         }
-        item.cells[i] = make_record(face, item.block_records.data() + i * mesh_.block_record_size);
+        if (!prepare(face, batch.triangles[i])) {
+          ++item.dropped;
+          continue;
+        }
+        item.cells[kept] = make_record(face, item.block_records.data() + kept * mesh_.block_record_size);
+        ++kept;
       }
+      item.cells.resize(kept);
     };
     face_pass.sink = [&](InputItem& item, Lease&) {
       add_records(*blocks, item.block_records, item.cells);
+      mesh_.dropped_faces += item.dropped;
       if (!item.batch.triangles.empty()) {
         mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
       }
@@ -412,6 +582,19 @@ class Loader {
                       spill_lease("face bucketer", 0.2, sizeof(LocalFace)), expected_chunks, "load");
     BucketSpill corners(job_, scratch_, "corners", sizeof(CornerRef),
                         spill_lease("corner bucketer", 0.1, sizeof(CornerRef)), expected_chunks, "load");
+    // Out of core, the weld sorts (position, index) records by position-hash bucket,
+    // one bucket at a time; and the degree count reads every face once before the
+    // dereference, so spanning faces are also kept whole.
+    const uint32_t weld_buckets = std::clamp<uint32_t>(expected_chunks * 2, 1, 4096);
+    std::optional<BucketSpill> weld_spill, spanning;
+    if (options_.weld) {
+      weld_spill.emplace(job_, scratch_, "weld", sizeof(WeldRecord),
+                         spill_lease("weld bucketer", 0.1, sizeof(WeldRecord)), weld_buckets, "load");
+    }
+    if (options_.degrees) {
+      spanning.emplace(job_, scratch_, "spanning-faces", sizeof(LocalFace),
+                       spill_lease("spanning faces", 0.05, sizeof(LocalFace)), 1, "load");
+    }
     VertexFrameWriter vertex_writer(job_, scratch_, mesh_.vertices);
     uint64_t vertex_count = 0, face_count = 0, max_index = 0;
     std::optional<StageTimer> timer(std::in_place, job_, "load");
@@ -439,6 +622,12 @@ class Loader {
         vertex_writer.write(c, std::move(frame), count, first, std::move(frame_lease));
       }
       vertex_count = std::max<uint64_t>(vertex_count, batch.first_vertex + batch.vertices.size());
+      if (weld_spill) {
+        for (size_t i = 0; i < batch.vertices.size(); ++i) {
+          WeldRecord record{batch.vertices[i], batch.first_vertex + i};
+          weld_spill->add(weld_bucket(record.position, weld_buckets), &record);
+        }
+      }
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
         uint64_t face = batch.first_triangle + i;
         const Triangle& t = batch.triangles[i];
@@ -455,6 +644,10 @@ class Loader {
           CornerRef ref{face * 3 + uint64_t(k), t[k]};
           corners.add(uint32_t(t[k] / chunk), &ref);
         }
+        if (spanning) {
+          LocalFace record{face, t};
+          spanning->add(0, &record);
+        }
         ++mesh_.corner_faces;
       }
       if (!batch.triangles.empty()) face_count = std::max<uint64_t>(face_count, batch.first_triangle + batch.triangles.size());
@@ -463,6 +656,8 @@ class Loader {
     vertex_writer.finish();
     give_back(local.finish());
     give_back(corners.finish());
+    if (weld_spill) give_back(weld_spill->finish());
+    if (spanning) give_back(spanning->finish());
     if (face_count && max_index >= vertex_count) index_out_of_range(input_.path, 0, max_index, vertex_count);
     mesh_.vertex_count = mesh_.vertices.count = vertex_count;
     mesh_.face_count = face_count;
@@ -474,8 +669,76 @@ class Loader {
     build_grid(face_count);
     timer.reset();
 
+    if (weld_spill) weld_by_buckets(*weld_spill, vertex_count);
+    if (options_.degrees) count_degrees_from_spills(local, *spanning, vertex_count);
     resolve_local_faces(local, chunk, chunks);
     if (corners.records() > 0) resolve_corner_faces(corners, chunk, chunks);
+  }
+
+  // Out-of-core weld: each position-hash bucket loaded, sorted by (position, index),
+  // runs of equal positions mapped to their first index. Equal positions share a bucket.
+  void weld_by_buckets(BucketSpill& spill, uint64_t vertex_count) {
+    StageTimer timer(job_, "weld");
+    for (uint32_t b = 0; b < spill.bucket_count(); ++b) {
+      const uint64_t n = spill.records(b);
+      if (n == 0) continue;
+      const uint64_t bytes = n * sizeof(WeldRecord);
+      if (bytes > reserve_.bytes()) {
+        throw Error(ErrorKind::resource, "loader: a weld bucket of " + std::to_string(n) +
+                                             " vertices (" + config::format_size(bytes) +
+                                             ") does not fit the memory budget");
+      }
+      Lease bucket_lease = take("weld bucket", bytes);
+      UninitializedVector<WeldRecord> records(n);
+      uint64_t at = 0;
+      for_each_frame(job_, scratch_, "weld", "weld frames", spill.frames(b), sizeof(WeldRecord), {},
+                     [&](const FrameHeader& header, Bytes& frame, Lease&) {
+                       std::memcpy(static_cast<void*>(records.data() + at), frame.data(), header.count * sizeof(WeldRecord));
+                       at += header.count;
+                     },
+                     0);
+      if (at != n) throw Error(ErrorKind::internal, "weld bucket lost records");
+      job_.arena().execute([&] {
+        tbb::parallel_sort(records.begin(), records.end(), [](const WeldRecord& a, const WeldRecord& b) {
+          PositionKey ka = position_key(a.position), kb = position_key(b.position);
+          return ka != kb ? ka < kb : a.index < b.index;
+        });
+      });
+      weld_.add_runs(n, [&](uint64_t i) { return records[i].position; }, [&](uint64_t i) { return records[i].index; });
+      records = {};
+      give_back(std::move(bucket_lease));
+      job_.check();
+    }
+    remove_files(spill);
+    finish_weld(vertex_count);
+  }
+
+  // Out of core: every face (local ones from their buckets, spanning ones whole)
+  // counted around its welded vertices before any record is made.
+  void count_degrees_from_spills(const BucketSpill& local, BucketSpill& spanning, uint64_t vertex_count) {
+    StageTimer timer(job_, "degrees");
+    start_degrees(vertex_count);
+    std::vector<FrameRef> frames;
+    for (uint32_t b = 0; b < local.bucket_count(); ++b) frames.insert(frames.end(), local.frames(b).begin(), local.frames(b).end());
+    for (uint32_t b = 0; b < spanning.bucket_count(); ++b) frames.insert(frames.end(), spanning.frames(b).begin(), spanning.frames(b).end());
+    for_each_frame(
+        job_, scratch_, "degrees", "face frames", frames, sizeof(LocalFace),
+        [&](const FrameHeader& header, Bytes& records, Lease&) {
+          auto* faces = reinterpret_cast<LocalFace*>(records.data());
+          for (uint64_t i = 0; i < header.count; ++i) {
+            auto t = welded(faces[i].vertices);
+            faces[i].vertices = t ? *t : Triangle{UINT64_MAX, UINT64_MAX, UINT64_MAX};
+          }
+        },
+        [&](const FrameHeader& header, Bytes& records, Lease&) {
+          const auto* faces = reinterpret_cast<const LocalFace*>(records.data());
+          for (uint64_t i = 0; i < header.count; ++i) {
+            if (faces[i].vertices[0] == UINT64_MAX) continue;
+            for (uint64_t v : faces[i].vertices) degree_.add(v);
+          }
+        },
+        0);
+    remove_files(spanning);
   }
 
   // Pass 2: per chunk c, with chunks c and c+1 loaded, the local faces of bucket c
@@ -511,9 +774,8 @@ class Loader {
             BlockFace face;
             for (uint64_t i = 0; i < header.count; ++i) {
               face.id = faces[i].id;
-              face.vertices = faces[i].vertices;
               for (int k = 0; k < 3; ++k) face.positions[k] = pair[faces[i].vertices[k] - first];
-              cells[i] = make_record(face, out.data() + i * size);
+              cells[i] = prepare(face, faces[i].vertices) ? make_record(face, out.data() + i * size) : UINT32_MAX;
             }
             records.swap(out);
           },
@@ -521,6 +783,10 @@ class Loader {
             const uint32_t size = mesh_.block_record_size;
             const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * size);
             for (uint64_t i = 0; i < header.count; ++i) {
+              if (cells[i] == UINT32_MAX) {
+                ++mesh_.dropped_faces;
+                continue;
+              }
               blocks.add(cells[i], records.data() + i * size);
               ++mesh_.block_faces[cells[i]];
             }
@@ -609,9 +875,10 @@ class Loader {
         if (filled[i] == 0) continue;
         if (filled[i] != 3) throw Error(ErrorKind::internal, "face " + std::to_string(first_face + i) + ": corners lost");
         face.id = first_face + i;
-        for (int k = 0; k < 3; ++k) {
-          face.vertices[k] = vertex_of[3 * i + k];
-          face.positions[k] = position_of[3 * i + k];
+        for (int k = 0; k < 3; ++k) face.positions[k] = position_of[3 * i + k];
+        if (!prepare(face, {vertex_of[3 * i], vertex_of[3 * i + 1], vertex_of[3 * i + 2]})) {
+          ++mesh_.dropped_faces;
+          continue;
         }
         add_face(blocks, face);
       }
@@ -643,6 +910,10 @@ class Loader {
   Lease reserve_;  // the loader's working set; parts are split off and merged back
   uint64_t capacity_ = 0;
   double progress_span_ = 0.4;
+  double progress_base_ = 0;
+  Lease state_lease_;  // covers weld_ and degree_ (declared first: released last)
+  WeldMap weld_;
+  DegreeCounter degree_;
   Box box_;
   LoadedMesh mesh_;
 };
@@ -661,6 +932,8 @@ void unpack_block_faces(const std::byte* records, uint64_t count, uint32_t recor
     out[i].id = packed.id;
     out[i].vertices = packed.vertices;
     for (int k = 0; k < 9; ++k) out[i].positions[k / 3][k % 3] = packed.positions[k];
+    out[i].degree = packed.degree;
+    out[i].unused = 0;
   }
 }
 

@@ -89,6 +89,13 @@ uint64_t expected_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {
   return (zstd_input ? 5 : 2) * input_file_bytes;
 }
 
+// Raw frames: blocks are 80 bytes a face (float input), vertex chunks 24 bytes a vertex,
+// bucketed faces 32; a binary PLY holds ~19 bytes a face (13 a face, 12 a vertex, half
+// as many vertices as faces).
+uint64_t expected_raw_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {
+  return (zstd_input ? 20 : 8) * input_file_bytes;
+}
+
 ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, const JobHooks& hooks) {
   JobSettings settings;
   settings.threads = options.threads;
@@ -103,15 +110,19 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     std::error_code ec;
     uint64_t input_bytes = std::filesystem::file_size(options.input, ec);
     if (ec) throw Error(ErrorKind::bad_input, options.input.string() + ": cannot read: " + ec.message());
-    ScratchStore scratch(options.scratch_dir,
-                         expected_scratch_bytes(input_bytes, options.input.extension() == ".zst"));
+    bool zstd_input = options.input.extension() == ".zst";
+    ScratchStore scratch(options.scratch_dir, expected_scratch_bytes(input_bytes, zstd_input),
+                         expected_raw_scratch_bytes(input_bytes, zstd_input), options.scratch_codec);
+    // The loader encodes some frames with the default codec: the store's, for this run.
+    DefaultFrameCodec codec_for_this_run(scratch.codec());
     // Declared after the store, so destroyed first: no queued scratch write may
     // outlive the store, whatever threw.
     struct DrainIo {
       Job& job;
       ~DrainIo() { job.io().drain(); }
     } drain_before_scratch_goes{job};
-    LoadedMesh mesh = load_into_blocks(job, scratch, options.input, options.load);
+    // The input as it is: re-encode keeps every vertex and face.
+    LoadedMesh mesh = load_into_blocks(job, scratch, options.input, LoadOptions::verbatim(options.load));
 
     io::WriteOptions write_options;
     // OBJ text is read back as double, so only the shortest double text keeps the bits.
@@ -166,6 +177,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["scratch_bytes_written"] = scratch.bytes_written();
     result.report["scratch_bytes_read"] = scratch.bytes_read();
     result.report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
+    result.report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
     result.report["input_bytes"] = input_bytes;
     result.report["output_bytes"] = writer->bytes_written();
     result.summary = format_summary(result.report);

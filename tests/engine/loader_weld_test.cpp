@@ -1,0 +1,189 @@
+// The loader gives the epoch loop what the in-core run sees: welded vertex ids
+// (smallest input index among equal positions), faces with a repeated welded vertex
+// dropped and counted, and per-corner degrees (kept faces around the welded vertex in
+// the whole mesh). Checked against a brute-force in-memory computation, on a
+// generated mesh with injected duplicates (incl. -0.0, a face that welding makes
+// degenerate, a repeated input index, a 300-face fan) and on the shared meshes, for
+// the resident and the out-of-core paths (tiny windows).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+
+#include "engine/blocks.hpp"
+#include "engine/scratch.hpp"
+#include "gen/generator.hpp"
+#include "io/indexed_mesh.hpp"
+#include "test_support.hpp"
+
+namespace qemflow::engine {
+namespace {
+
+using qemflow::testing::TempDir;
+
+struct Expected {
+  std::vector<uint64_t> representative;
+  std::vector<std::optional<Triangle>> faces;  // welded; nullopt = dropped
+  std::vector<uint32_t> degree;
+  uint64_t dropped = 0, welded = 0;
+};
+
+// By definition: a map from position (-0.0 as 0.0) to its first index.
+Expected brute_force(const io::IndexedMesh& mesh, bool weld = true) {
+  Expected e;
+  std::map<std::array<double, 3>, uint64_t> first;
+  e.representative.resize(mesh.vertices.size());
+  for (uint64_t i = 0; i < mesh.vertices.size(); ++i) {
+    std::array<double, 3> key;
+    for (int k = 0; k < 3; ++k) key[k] = mesh.vertices[i][k] == 0.0 ? 0.0 : mesh.vertices[i][k];
+    auto [it, inserted] = first.emplace(key, i);
+    e.representative[i] = weld ? it->second : i;
+    e.welded += e.representative[i] != i;
+  }
+  e.degree.assign(mesh.vertices.size(), 0);
+  for (const Triangle& raw : mesh.triangles) {
+    Triangle t{e.representative[raw[0]], e.representative[raw[1]], e.representative[raw[2]]};
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
+      e.faces.emplace_back();
+      ++e.dropped;
+      continue;
+    }
+    e.faces.emplace_back(t);
+    for (uint64_t v : t) ++e.degree[v];
+  }
+  return e;
+}
+
+struct Loaded {
+  LoadedMesh mesh;
+  std::vector<BlockFace> faces;  // by id order
+};
+
+Loaded load(const std::filesystem::path& path, const TempDir& dir, bool out_of_core, uint64_t window,
+            bool weld = true) {
+  Governor governor(256ull << 20, 0);
+  Job job(governor, {}, {.threads = 2});
+  ScratchStore scratch(dir.path(), 0);
+  LoadOptions options{.faces_per_block = 3'000, .window_vertices = out_of_core ? window : 0,
+                      .range_faces = out_of_core ? window + 17 : 0, .force_out_of_core = out_of_core};
+  options.weld = weld;
+  Loaded loaded;
+  loaded.mesh = load_into_blocks(job, scratch, path, options);
+  EXPECT_EQ(loaded.mesh.out_of_core, out_of_core);
+  for (uint32_t cell = 0; cell < loaded.mesh.grid.count(); ++cell) {
+    for_each_frame(job, scratch, "check", "check", loaded.mesh.blocks[cell], loaded.mesh.block_record_size, {},
+                   [&](const FrameHeader& header, Bytes& records, Lease&) {
+                     size_t at = loaded.faces.size();
+                     loaded.faces.resize(at + header.count);
+                     unpack_block_faces(records.data(), header.count, loaded.mesh.block_record_size,
+                                        loaded.faces.data() + at);
+                   },
+                   0);
+  }
+  std::sort(loaded.faces.begin(), loaded.faces.end(),
+            [](const BlockFace& a, const BlockFace& b) { return a.id < b.id; });
+  loaded.mesh.vertices.resident = {};
+  loaded.mesh.resident_lease.release();
+  return loaded;
+}
+
+void expect_matches(const io::IndexedMesh& mesh, const Expected& e, const Loaded& loaded) {
+  EXPECT_EQ(loaded.mesh.face_count, mesh.triangles.size());
+  EXPECT_EQ(loaded.mesh.dropped_faces, e.dropped);
+  EXPECT_EQ(loaded.mesh.welded_vertices, e.welded);
+  ASSERT_EQ(loaded.faces.size(), mesh.triangles.size() - e.dropped);
+  uint64_t mismatches = 0;
+  size_t at = 0;
+  for (uint64_t f = 0; f < mesh.triangles.size(); ++f) {
+    if (!e.faces[f]) continue;
+    const BlockFace& face = loaded.faces[at++];
+    ASSERT_EQ(face.id, f);
+    for (int k = 0; k < 3; ++k) {
+      mismatches += face.vertices[k] != (*e.faces[f])[k];
+      mismatches += face.degree[k] != e.degree[(*e.faces[f])[k]];
+      mismatches += face.positions[k] != mesh.vertices[mesh.triangles[f][k]];
+    }
+  }
+  EXPECT_EQ(mismatches, 0u);
+}
+
+// A generated blob with duplicates injected: copies of vertices appended and some
+// corners pointed at them, one copy with -0.0, a face (a, b, copy of a), a face
+// (a, a, b), and a 300-face fan around one hub (degree over a byte).
+io::IndexedMesh mesh_with_duplicates() {
+  io::IndexedMesh mesh = gen::generate_in_memory({.shape = "blob", .faces = 20'000, .seed = 3});
+  const uint64_t n = mesh.vertices.size();
+  for (uint64_t f = 0; f < mesh.triangles.size(); f += 7) {
+    uint64_t v = mesh.triangles[f][f % 3];
+    mesh.vertices.push_back(mesh.vertices[v]);
+    mesh.triangles[f][f % 3] = mesh.vertices.size() - 1;
+  }
+  mesh.vertices.push_back({0.0, 5.0, 5.0});
+  mesh.vertices.push_back({-0.0, 5.0, 5.0});
+  mesh.vertices.push_back({0.0, 5.0, 6.0});
+  const uint64_t z = mesh.vertices.size() - 3;
+  mesh.triangles.push_back({z, z + 2, z + 1});           // dropped after the weld
+  mesh.triangles.push_back({0, 0, 1});                    // dropped: repeated input index
+  mesh.triangles.push_back({z + 1, z + 2, n / 2});        // kept, welded to z
+  const uint64_t hub = mesh.vertices.size();
+  mesh.vertices.push_back({9, 9, 9});
+  for (int i = 0; i <= 300; ++i) {
+    double a = 6.283185307179586 * i / 300;
+    mesh.vertices.push_back({9 + std::cos(a), 9 + std::sin(a), 9});
+  }
+  for (uint64_t i = 0; i < 300; ++i) mesh.triangles.push_back({hub, hub + 1 + i, hub + 2 + i});
+  mesh.vertices.push_back({9, 9, 9});  // a copy of the hub, referenced once
+  mesh.triangles.push_back({mesh.vertices.size() - 1, hub + 1, hub + 3});
+  return mesh;
+}
+
+TEST(LoaderWeld, InjectedDuplicatesMatchBruteForceResidentAndOutOfCore) {
+  TempDir dir;
+  io::write_mesh(dir / "in.ply", mesh_with_duplicates());
+  const io::IndexedMesh mesh = io::read_mesh(dir / "in.ply");  // positions as stored
+  const Expected e = brute_force(mesh);
+  ASSERT_GT(e.welded, 2'000u);
+  ASSERT_EQ(e.dropped, 2u);
+  ASSERT_EQ(e.degree[mesh.vertices.size() - 303], 301u);  // the hub, past a byte
+  for (bool out_of_core : {false, true}) {
+    SCOPED_TRACE(out_of_core ? "out of core" : "resident");
+    Loaded loaded = load(dir / "in.ply", dir, out_of_core, 613);
+    if (out_of_core) {
+      EXPECT_GT(loaded.mesh.local_faces, 0u);
+      EXPECT_GT(loaded.mesh.corner_faces, 0u);
+    }
+    expect_matches(mesh, e, loaded);
+  }
+}
+
+TEST(LoaderWeld, NoWeldKeepsInputIdsButStillDropsRepeatedIndices) {
+  TempDir dir;
+  io::write_mesh(dir / "in.ply", mesh_with_duplicates());
+  const io::IndexedMesh mesh = io::read_mesh(dir / "in.ply");  // positions as stored
+  const Expected e = brute_force(mesh, false);
+  ASSERT_EQ(e.dropped, 1u);
+  for (bool out_of_core : {false, true}) {
+    SCOPED_TRACE(out_of_core ? "out of core" : "resident");
+    expect_matches(mesh, e, load(dir / "in.ply", dir, out_of_core, 1'009, false));
+  }
+}
+
+void check_shared_mesh(const std::string& name, uint64_t window, uint64_t expected_welded) {
+  auto path = qemflow::testing::shared_mesh(name);
+  QEMFLOW_REQUIRE_SHARED_MESH(path);
+  TempDir dir;
+  io::IndexedMesh mesh = io::read_mesh(path);
+  const Expected e = brute_force(mesh);
+  if (expected_welded != UINT64_MAX) EXPECT_EQ(e.welded, expected_welded);
+  for (bool out_of_core : {false, true}) {
+    SCOPED_TRACE(out_of_core ? "out of core" : "resident");
+    expect_matches(mesh, e, load(path, dir, out_of_core, window));
+  }
+}
+
+TEST(LoaderWeld, BunnyMatchesBruteForce) { check_shared_mesh("stanford-bunny", 4'999, UINT64_MAX); }
+TEST(LoaderWeld, DragonMatchesBruteForce) { check_shared_mesh("stanford-dragon", 50'000, 2'100); }
+
+}  // namespace
+}  // namespace qemflow::engine
