@@ -17,6 +17,7 @@
 #include <string>
 
 #include "apps/qemflow/commands.hpp"
+#include "engine/process_memory.hpp"
 #include "config/size.hpp"
 #include "engine/reencode.hpp"
 #include "nodes/pipeline/epochs.hpp"
@@ -89,6 +90,9 @@ void run_simplify(const SimplifyArgs& args) {
   if (args.threads > 0) limit.emplace(tbb::global_control::max_allowed_parallelism, args.threads);
   const int threads = args.threads > 0 ? args.threads : tbb::info::default_concurrency();
 
+  // A fixed mmap threshold: big arrays freed early (the input mesh) go back to the
+  // system instead of staying in the heap under glibc's growing dynamic threshold.
+  engine::tune_allocator();
   const auto t0 = std::chrono::steady_clock::now();
   io::IndexedMesh mesh = io::read_mesh(args.input);
   const double seconds_read = seconds_since(t0);

@@ -117,9 +117,9 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   for (size_t v = 0; v < in.locked.size(); ++v)
     if (in.locked[v]) vflag_[v] |= kLocked;
   const bool any_incomplete = std::any_of(in.incomplete.begin(), in.incomplete.end(), nonzero);
-  if (std::all_of(in.owned_face.begin(), in.owned_face.end(), nonzero)) in.owned_face = {};
-  in.owned_vertex = {};
-  in.incomplete = {};
+  if (std::all_of(in.owned_face.begin(), in.owned_face.end(), nonzero)) release_memory(in.owned_face);
+  release_memory(in.owned_vertex);
+  release_memory(in.incomplete);
 
   // Faces in ascending global id: the canonical order of every per-vertex sum.
   if (!std::is_sorted(in.face_gids.begin(), in.face_gids.end())) {
@@ -171,7 +171,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
 
   build_corner_chains();
   if (in.locked.empty()) lock_nonmanifold_vertices();
-  in.locked = {};
+  release_memory(in.locked);
   if (in.quadrics.size() == nv) {
     quadric_ = std::move(in.quadrics);
   } else {
@@ -182,7 +182,8 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   best_.assign(nv, kNone);
   best_cost_.assign(nv, 0.0);
   partner_.assign(nv, kNone);
-  dirty_.assign(nv, kTouched);
+  dirty_.assign(nv, 1);
+  touched_.assign(nv, 1);
   locked_count_ = 0;
   for (uint8_t f : vflag_) locked_count_ += (f & kLocked) ? 1 : 0;
 }
@@ -303,13 +304,14 @@ EdgeKey PatchDecimator::lme_key(uint32_t v) const {
   return {best_cost_[v], std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
 }
 
-bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const {
+bool PatchDecimator::collapse_valid(uint32_t a, const std::vector<uint32_t>& faces_of_a, uint32_t b,
+                                    const Vec3& p, Scratch& s) const {
   // a and b are unlocked, hence manifold: every edge at them has one or two faces.
-  gather_faces(a, s.fa);
+  const std::vector<uint32_t>& fa = faces_of_a;
   gather_faces(b, s.fb);
   uint32_t opposite[2];
   int shared = 0;
-  for (uint32_t f : s.fa) {
+  for (uint32_t f : fa) {
     const auto& t = fv_[f];
     if (!contains(t, b)) continue;
     if (shared == 2) return false;  // non-manifold edge
@@ -317,14 +319,14 @@ bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scrat
   }
   if (shared == 0) return false;
   if (shared == 2 && opposite[0] == opposite[1]) return false;
-  if (s.fa.size() + s.fb.size() == 2u * shared) return false;  // would erase a component
+  if (fa.size() + s.fb.size() == 2u * shared) return false;  // would erase a component
   // An interior edge joining two border vertices would pinch the surface.
   if (shared == 2 && (vflag_[a] & kBorder) && (vflag_[b] & kBorder)) return false;
   // Link condition: no common neighbour besides the opposite vertices...
   for (uint32_t fb : s.fb) {
     for (uint32_t x : fv_[fb]) {
       if (x == a || x == b || x == opposite[0] || (shared == 2 && x == opposite[1])) continue;
-      for (uint32_t fa : s.fa)
+      for (uint32_t fa : fa)
         if (contains(fv_[fa], x)) return false;
     }
   }
@@ -332,7 +334,7 @@ bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scrat
   if (shared == 2) {
     const uint32_t c = opposite[0], d = opposite[1];
     bool in_a = false, in_b = false;
-    for (uint32_t f : s.fa) in_a |= contains(fv_[f], c) && contains(fv_[f], d);
+    for (uint32_t f : fa) in_a |= contains(fv_[f], c) && contains(fv_[f], d);
     for (uint32_t f : s.fb) in_b |= contains(fv_[f], c) && contains(fv_[f], d);
     if (in_a && in_b) return false;
   }
@@ -356,7 +358,7 @@ bool PatchDecimator::collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scrat
     }
     return true;
   };
-  for (uint32_t f : s.fa)
+  for (uint32_t f : fa)
     if (!contains(fv_[f], b) && !face_ok(f, a)) return false;
   for (uint32_t f : s.fb)
     if (!contains(fv_[f], a) && !face_ok(f, b)) return false;
@@ -373,7 +375,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   // now valid and smaller (or the cached best itself leads to a touched vertex).
   EdgeKey bound{std::numeric_limits<double>::infinity(), 0, 0};
   const uint32_t b0 = best_[v];
-  if (near_touched_only && b0 != kNone && (dirty_[b0] & kTouched)) near_touched_only = false;
+  if (near_touched_only && b0 != kNone && touched_[b0]) near_touched_only = false;
   if (near_touched_only && b0 != kNone)
     bound = {best_cost_[v], std::min(vgid_[v], vgid_[b0]), std::max(vgid_[v], vgid_[b0])};
   if (!near_touched_only) {
@@ -384,7 +386,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   fan_neighbors(v, s.faces, s.others);
   s.options.clear();
   for (uint32_t w : s.others) {
-    if ((vflag_[w] & kLocked) || (near_touched_only && !(dirty_[w] & kTouched))) continue;
+    if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
     const Vec3 p = edge_position(v, w);
     const double cost = quadric_error(quadric_[v] + quadric_[w], p);
     if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) continue;
@@ -394,7 +396,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   std::sort(s.options.begin(), s.options.end(),
             [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
   for (const auto& o : s.options) {
-    if (collapse_valid(v, o.other, o.position, s)) {
+    if (collapse_valid(v, s.faces, o.other, o.position, s)) {
       best_[v] = o.other;
       best_cost_[v] = o.key.cost;
       return;
@@ -462,6 +464,7 @@ void PatchDecimator::compact_storage() {
     quadric_[nv] = quadric_[v];
     vflag_[nv] = vflag_[v];
     dirty_[nv] = dirty_[v];
+    touched_[nv] = touched_[v];
     best_[nv] = best_[v];
     best_cost_[nv] = best_cost_[v];
     ++nv;
@@ -471,6 +474,7 @@ void PatchDecimator::compact_storage() {
   quadric_.resize(nv);
   vflag_.resize(nv);
   dirty_.resize(nv);
+  touched_.resize(nv);
   best_.resize(nv);
   best_cost_.resize(nv);
   partner_.assign(nv, kNone);
@@ -502,13 +506,13 @@ void PatchDecimator::prepare_round() {
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
     compact_chain(v);
-    if (dirty_[v] & kTouched) update_border(v, scratch.local());
+    if (touched_[v]) update_border(v, scratch.local());
   });
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
-    refresh_best(v, scratch.local(), !(dirty_[v] & kTouched));
+    refresh_best(v, scratch.local(), !touched_[v]);
   }, 64);
-  for (uint32_t v : dirty_list) dirty_[v] = 0;
+  for (uint32_t v : dirty_list) dirty_[v] = touched_[v] = 0;
   parallel_over(nv, [&](size_t v) {
     const uint32_t w = best_[v];
     partner_[v] = (w != kNone && best_[w] == v) ? w : kNone;
@@ -550,7 +554,8 @@ void PatchDecimator::prepare_round() {
 
 void PatchDecimator::set_params(const DecimateParams& params) {
   params_ = params;
-  std::fill(dirty_.begin(), dirty_.end(), uint8_t{kTouched});
+  std::fill(dirty_.begin(), dirty_.end(), uint8_t{1});
+  std::fill(touched_.begin(), touched_.end(), uint8_t{1});
   candidates_.clear();
 }
 
@@ -668,22 +673,28 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
   // Everything whose best edge may have changed lies within 2 rings of a kept vertex.
   parallel_over(chosen.size(), [&](size_t i) {
     const uint32_t k = chosen[i].keep;
-    auto mark = [&](uint32_t u, uint8_t bits) {
-      std::atomic_ref<uint8_t> flag(dirty_[u]);
-      if ((flag.load(std::memory_order_relaxed) & bits) != bits)
-        flag.fetch_or(bits, std::memory_order_relaxed);
+    // Flags are only ever set to 1 here (plain relaxed stores, no read-modify-write).
+    auto set = [](uint8_t& flag) {
+      std::atomic_ref<uint8_t> f(flag);
+      if (!f.load(std::memory_order_relaxed)) f.store(1, std::memory_order_relaxed);
     };
-    mark(k, kTouched);
+    set(touched_[k]);
+    set(dirty_[k]);
     // First ring (touched: their faces changed): include the faces this collapse
     // removed, so their opposite vertices are refreshed even when no live face joins
-    // them to k any more. Second ring: only edges to touched vertices changed.
+    // them to k any more. Second ring: only edges to touched vertices changed. Whoever
+    // sets a vertex's touched flag marks its ring (the mesh is final by now), so a
+    // vertex seen touched already needs no second walk.
     for (uint32_t c1 = head_[k]; c1 != kNone; c1 = next_[c1]) {
       for (uint32_t u : fv_[c1 / 3]) {
         if (u == k) continue;
-        mark(u, kTouched);
+        std::atomic_ref<uint8_t> touched(touched_[u]);
+        if (touched.load(std::memory_order_relaxed)) continue;
+        touched.store(1, std::memory_order_relaxed);
+        set(dirty_[u]);
         for (uint32_t c2 = head_[u]; c2 != kNone; c2 = next_[c2]) {
           if (!falive_[c2 / 3]) continue;
-          for (uint32_t x : fv_[c2 / 3]) mark(x, kNearTouched);
+          for (uint32_t x : fv_[c2 / 3]) set(dirty_[x]);
         }
       }
     }

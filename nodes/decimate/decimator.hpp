@@ -66,6 +66,13 @@
 
 namespace qemflow::nodes {
 
+// Frees a vector's storage (`v = {}` would keep the capacity: it assigns an empty
+// initializer list).
+template <class T>
+void release_memory(std::vector<T>& v) {
+  std::vector<T>().swap(v);
+}
+
 inline constexpr int kDecisionRadius = 4;
 // Untrusted state spreads this many rings per round (wrong decisions within
 // kDecisionRadius rings, whose collapses change faces one ring further).
@@ -193,8 +200,6 @@ class PatchDecimator {
  private:
   struct Scratch;
   enum : uint8_t { kDead = 1, kLocked = 2, kUntrusted = 4, kBorder = 8, kOwned = 16 };
-  // dirty_ bits: the vertex's faces changed (full refresh) / a neighbour's did.
-  enum : uint8_t { kTouched = 2, kNearTouched = 1 };
 
   void build_corner_chains();
   void lock_nonmanifold_vertices();
@@ -203,7 +208,8 @@ class PatchDecimator {
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only);
   void update_border(uint32_t v, Scratch& s);
   void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces, std::vector<uint32_t>& out) const;
-  bool collapse_valid(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const;
+  bool collapse_valid(uint32_t a, const std::vector<uint32_t>& faces_of_a, uint32_t b, const Vec3& p,
+                      Scratch& s) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
   EdgeKey lme_key(uint32_t v) const;
@@ -219,7 +225,8 @@ class PatchDecimator {
   std::vector<uint64_t> vgid_;
   std::vector<Quadric> quadric_;
   std::vector<uint8_t> vflag_;
-  std::vector<uint8_t> dirty_;
+  std::vector<uint8_t> dirty_;       // best edge may have changed (a neighbour's faces did)
+  std::vector<uint8_t> touched_;     // the vertex's own faces changed: full refresh
   std::vector<uint32_t> head_;       // first corner of the vertex's chain
   std::vector<uint32_t> best_;       // other endpoint of best edge, or kNone
   std::vector<double> best_cost_;

@@ -98,9 +98,12 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
     }
     input.face_gids[f] = f;
   }
-  triangles = {};
-  representative = {};
+  release_memory(triangles);
+  release_memory(representative);
   uint32_t next = 0;
+  const size_t used = size_t(std::count(local.begin(), local.end(), 0u));
+  input.positions.reserve(used);
+  input.vertex_gids.reserve(used);
   for (uint64_t v = 0; v < points.size(); ++v) {
     if (local[v] == kUnused) continue;
     local[v] = next++;
@@ -109,8 +112,8 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
   }
   for (auto& t : input.faces)
     for (auto& v : t) v = local[v];
-  points = {};
-  local = {};
+  release_memory(points);
+  release_memory(local);
 
   PatchDecimator decimator(std::move(input), options.params);
   st.locked_vertices = decimator.locked_vertices();
