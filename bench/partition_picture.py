@@ -1,13 +1,15 @@
 #!/usr/bin/python3
 """Render a mesh coloured by partition patch (like Fig. 6 of the paper), from the file
-that `partition_bench --dump-partition=OUT.bin` writes.
+that `pipeline_partition_bench --dump=OUT.bin` writes: the real out-of-core path (load
+into blocks, partition stage, every face classified from the blocks by its barycenter).
+`partition_bench --dump-partition=OUT.bin` writes the same format from in-memory kernels.
 
-    build/bench/partition_bench --dump-partition=/tmp/bunny.bin \\
-        --mesh=../shared/data/stanford-bunny.ply.zst --clusters=8
-    /usr/bin/python3 bench/partition_picture.py /tmp/bunny.bin bench/results/partition.png
+    build/bench/pipeline_partition_bench ../shared/data/stanford-dragon.ply.zst \
+        --clusters=8 --dump=/tmp/dragon.bin
+    /usr/bin/python3 bench/partition_picture.py /tmp/dragon.bin bench/results/partition.png
 
 Two views (front and back), flat Lambert shading, painter's algorithm on a 2D
-PolyCollection with back faces culled: fine up to a few hundred thousand faces.
+PolyCollection with back faces culled: fine up to a million faces.
 Needs numpy and matplotlib (Debian: python3-matplotlib).
 """
 import argparse
