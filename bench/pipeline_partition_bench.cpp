@@ -94,6 +94,10 @@ int main(int argc, char** argv) {
               partition.fcm_iterations, classify_s, (unsigned long long)smallest, (unsigned long long)largest,
               config::format_size(engine::peak_resident_bytes()).c_str());
 
+  std::printf("stages:");
+  for (const engine::StageStats* stage : job.stages()) std::printf(" %s %.2f s", stage->name.c_str(), stage->seconds);
+  std::printf("\n");
+
   if (!dump.empty()) {
     // The picture needs the mesh itself: small meshes only (read in memory).
     io::IndexedMesh indexed = io::read_mesh(input);
