@@ -16,6 +16,9 @@ namespace qemflow::nodes {
 namespace {
 
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+// corner_cost_ values: not computed yet / the edge has no finite cost or position.
+constexpr double kUnknownCost = std::numeric_limits<double>::quiet_NaN();
+constexpr double kSkipEdge = std::numeric_limits<double>::infinity();
 
 Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
 Vec3 cross(const Vec3& a, const Vec3& b) {
@@ -91,7 +94,6 @@ struct PatchDecimator::Scratch {
   struct Option {
     EdgeKey key;
     uint32_t other;
-    Vec3 position;
   };
   std::vector<Option> options;
 };
@@ -168,6 +170,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   fowned_ = std::move(in.owned_face);
   falive_.assign(fv_.size(), 1);
   faces_alive_ = fv_.size();
+  corner_cost_.assign(3 * fv_.size(), kUnknownCost);
 
   build_corner_chains();
   if (in.locked.empty()) lock_nonmanifold_vertices();
@@ -383,20 +386,19 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
     best_cost_[v] = 0.0;
   }
   gather_faces(v, s.faces);
-  fan_neighbors(v, s.faces, s.others);
+  fan_neighbors(v, s.faces, s.na);
   s.options.clear();
-  for (uint32_t w : s.others) {
+  for (const auto& [w, corner] : s.na) {
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
-    const Vec3 p = edge_position(v, w);
-    const double cost = quadric_error(quadric_[v] + quadric_[w], p);
-    if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) continue;
+    const double cost = edge_cost(v, w, corner);
+    if (cost == kSkipEdge) continue;
     const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
-    if (key < bound) s.options.push_back({key, w, p});
+    if (key < bound) s.options.push_back({key, w});
   }
   std::sort(s.options.begin(), s.options.end(),
             [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
   for (const auto& o : s.options) {
-    if (collapse_valid(v, s.faces, o.other, o.position, s)) {
+    if (collapse_valid(v, s.faces, o.other, edge_position(v, o.other), s)) {
       best_[v] = o.other;
       best_cost_[v] = o.key.cost;
       return;
@@ -404,21 +406,40 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   }
 }
 
+double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner) {
+  // The cost depends only on both endpoints' quadrics and positions, which change
+  // only at a collapse's kept vertex, whose corners collapse() resets: a cached value
+  // is the value recomputing would give, bit for bit (both ends compute the same).
+  std::atomic_ref<double> cached(corner_cost_[corner]);
+  const double known = cached.load(std::memory_order_relaxed);
+  if (!std::isnan(known)) return known;
+  const Vec3 p = edge_position(v, w);
+  double cost = quadric_error(quadric_[v] + quadric_[w], p);
+  if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) cost = kSkipEdge;
+  cached.store(cost, std::memory_order_relaxed);
+  return cost;
+}
+
 void PatchDecimator::fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces,
-                                   std::vector<uint32_t>& out) const {
+                                   std::vector<std::pair<uint32_t, uint32_t>>& out) const {
   // v is unlocked: one consistently oriented fan, so the vertex after v in each face
-  // lists every neighbour once, except the first one of a border fan.
+  // lists every neighbour once, except the first one of a border fan. Each comes with
+  // the corner whose edge (corner vertex -> next vertex) joins it to v.
   out.clear();
   for (uint32_t f : faces) {
     const auto& t = fv_[f];
-    out.push_back(t[0] == v ? t[1] : (t[1] == v ? t[2] : t[0]));
+    const uint32_t slot = t[0] == v ? 0 : (t[1] == v ? 1 : 2);
+    out.push_back({t[(slot + 1) % 3], 3 * f + slot});
   }
   if (!(vflag_[v] & kBorder)) return;
   const size_t n = out.size();
   for (uint32_t f : faces) {
     const auto& t = fv_[f];
-    const uint32_t prev = t[0] == v ? t[2] : (t[1] == v ? t[0] : t[1]);
-    if (std::find(out.begin(), out.begin() + n, prev) == out.begin() + n) out.push_back(prev);
+    const uint32_t slot = t[0] == v ? 2 : (t[1] == v ? 0 : 1);  // the vertex before v
+    const uint32_t prev = t[slot];
+    if (std::find_if(out.begin(), out.begin() + n, [&](const auto& x) { return x.first == prev; }) ==
+        out.begin() + n)
+      out.push_back({prev, 3 * f + slot});
   }
 }
 
@@ -484,11 +505,13 @@ void PatchDecimator::compact_storage() {
     if (!falive_[f]) continue;
     for (int k = 0; k < 3; ++k) fv_[nf][k] = remap[fv_[f][k]];
     fgid_[nf] = fgid_[f];
+    for (int k = 0; k < 3; ++k) corner_cost_[3 * nf + k] = corner_cost_[3 * f + k];
     if (!fowned_.empty()) fowned_[nf] = fowned_[f];
     ++nf;
   }
   fv_.resize(nf);
   fgid_.resize(nf);
+  corner_cost_.resize(3 * nf);
   if (!fowned_.empty()) fowned_.resize(nf);
   falive_.assign(nf, 1);
   for (auto& t : passthrough_)
@@ -639,6 +662,11 @@ void PatchDecimator::collapse(const Candidate& c) {
   head_[r] = kNone;
   pos_[k] = p;
   quadric_[k] += quadric_[r];
+  // Every edge at k has a new cost.
+  for (uint32_t corner = head_[k]; corner != kNone; corner = next_[corner]) {
+    const uint32_t f = corner / 3;
+    corner_cost_[3 * f] = corner_cost_[3 * f + 1] = corner_cost_[3 * f + 2] = kUnknownCost;
+  }
   vflag_[k] |= vflag_[r] & kUntrusted;
   vflag_[r] |= kDead;
   best_[r] = kNone;

@@ -207,7 +207,9 @@ class PatchDecimator {
   void compact_storage();
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only);
   void update_border(uint32_t v, Scratch& s);
-  void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces, std::vector<uint32_t>& out) const;
+  void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces,
+                     std::vector<std::pair<uint32_t, uint32_t>>& out) const;
+  double edge_cost(uint32_t v, uint32_t w, uint32_t corner);
   bool collapse_valid(uint32_t a, const std::vector<uint32_t>& faces_of_a, uint32_t b, const Vec3& p,
                       Scratch& s) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
@@ -236,6 +238,7 @@ class PatchDecimator {
   std::vector<uint64_t> fgid_;
   std::vector<uint8_t> falive_;
   std::vector<uint32_t> next_;       // next corner of the same vertex
+  std::vector<double> corner_cost_;  // cost of the edge (corner's vertex, next one); NaN: unknown
   uint64_t faces_alive_ = 0;
   // faces with a repeated vertex: passed through unchanged
   std::vector<std::array<uint32_t, 3>> passthrough_;
