@@ -81,6 +81,14 @@ int reencode_main(int argc, char** argv) {
     else if (arg == "--report") command.report_path = value();
     else if (arg == "--threads") command.threads = std::stoi(value());
     else if (arg == "--quiet") command.quiet = true;
+    else if (arg == "--scratch-codec") {
+      auto codec = parse_scratch_codec(value());
+      if (!codec) {
+        std::fprintf(stderr, "engine_bench: --scratch-codec must be auto, raw or zstd\n");
+        return 2;
+      }
+      command.scratch_codec = *codec;
+    }
     else positional.push_back(arg);
   }
   if (positional.size() != 2) {

@@ -24,6 +24,7 @@
 #include "engine/blocks.hpp"
 #include "engine/governor.hpp"
 #include "engine/job.hpp"
+#include "engine/scratch.hpp"
 
 namespace qemflow::engine {
 
@@ -37,6 +38,7 @@ struct ReencodeOptions {
   size_t trace_events = 1 << 18;      // cap of the trace buffer when tracing
   std::string job_name;               // prefixes this job's governor owners ("job 2/")
   LoadOptions load;
+  ScratchCodec scratch_codec = ScratchCodec::automatic;  // --scratch-codec
 };
 
 struct ReencodeResult {
@@ -51,6 +53,8 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
 // Scratch space to ask for up front, from the input's size on disk (vertex chunks,
 // bucketed faces and blocks, compressed).
 uint64_t expected_scratch_bytes(uint64_t input_file_bytes, bool zstd_input);
+// The same for raw (uncompressed) frames.
+uint64_t expected_raw_scratch_bytes(uint64_t input_file_bytes, bool zstd_input);
 
 }  // namespace qemflow::engine
 
@@ -65,6 +69,7 @@ struct ReencodeCommand {
   uint64_t mem_budget = 0;  // 0: half the machine's physical memory
   int threads = 0;
   bool quiet = false;
+  ScratchCodec scratch_codec = ScratchCodec::automatic;
 };
 ReencodeResult run_reencode_command(const ReencodeCommand& command);
 

@@ -21,6 +21,7 @@ ReencodeResult run_reencode_command(const ReencodeCommand& command) {
   options.trace_path = command.trace_path;
   options.report_path = command.report_path;
   options.threads = command.threads;
+  options.scratch_codec = command.scratch_codec;
   ReencodeResult result = run_reencode(governor, options, {.progress = bar.callback(), .cancel = {}});
   bar.finish();
   if (!command.quiet) std::fprintf(stderr, "qemflow: %s\n", result.summary.c_str());

@@ -5,12 +5,14 @@
 #include <unistd.h>
 #include <zstd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <cstring>
 #include <memory>
 #include <random>
 
 #include "config/size.hpp"
+#include "io/hash64.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -19,6 +21,27 @@ namespace {
 
 constexpr char magic[4] = {'Q', 'F', 'C', 'K'};
 constexpr uint16_t frame_version = 1;
+constexpr uint32_t flag_raw = 1;
+
+// The default codec: the base, or the newest live DefaultFrameCodec's. Read on every
+// encode_frame without a level, so cached in two atomics; changed under the mutex.
+struct DefaultCodecState {
+  std::mutex mutex;
+  FrameCodec base = FrameCodec::zstd();
+  std::vector<std::pair<uint64_t, FrameCodec>> overrides;  // oldest first
+  uint64_t next_id = 0;
+  std::atomic<bool> raw{false};
+  std::atomic<int> level{-1};
+  void publish() {  // under the mutex
+    FrameCodec now = overrides.empty() ? base : overrides.back().second;
+    level.store(now.zstd_level, std::memory_order_relaxed);
+    raw.store(now.raw, std::memory_order_relaxed);
+  }
+};
+DefaultCodecState& default_codec_state() {
+  static DefaultCodecState state;
+  return state;
+}
 
 uint64_t fnv1a(const std::byte* data, size_t size) {
   uint64_t h = 1469598103934665603ull;
@@ -54,11 +77,11 @@ ZstdContexts& contexts() {
 }
 
 void write_header(std::byte* at, uint64_t tag, uint32_t record_size, uint64_t count,
-                  uint64_t payload) {
+                  uint64_t payload, uint32_t flags) {
   std::memcpy(at, magic, 4);
   put<uint16_t>(at + 4, frame_version);
   put<uint16_t>(at + 6, uint16_t(record_size));
-  put<uint32_t>(at + 8, 0);
+  put<uint32_t>(at + 8, flags);
   put<uint64_t>(at + 12, tag);
   put<uint64_t>(at + 20, count);
   put<uint64_t>(at + 28, payload);
@@ -77,18 +100,79 @@ void write_header(std::byte* at, uint64_t tag, uint32_t record_size, uint64_t co
 
 }  // namespace
 
-size_t frame_bound(size_t raw_bytes) { return frame_header_bytes + ZSTD_compressBound(raw_bytes); }
+FrameCodec default_frame_codec() {
+  auto& state = default_codec_state();
+  return {state.raw.load(std::memory_order_relaxed), state.level.load(std::memory_order_relaxed)};
+}
+
+void set_default_frame_codec(FrameCodec codec) {
+  auto& state = default_codec_state();
+  std::lock_guard lock(state.mutex);
+  state.base = codec;
+  state.publish();
+}
+
+DefaultFrameCodec::DefaultFrameCodec(FrameCodec codec) {
+  auto& state = default_codec_state();
+  std::lock_guard lock(state.mutex);
+  id_ = state.next_id++;
+  state.overrides.emplace_back(id_, codec);
+  state.publish();
+}
+
+DefaultFrameCodec::~DefaultFrameCodec() {
+  auto& state = default_codec_state();
+  std::lock_guard lock(state.mutex);
+  std::erase_if(state.overrides, [this](const auto& entry) { return entry.first == id_; });
+  state.publish();
+}
+
+namespace {
+FrameCodec codec_for(int level) {
+  return level == default_frame_level ? default_frame_codec() : FrameCodec::zstd(level);
+}
+}  // namespace
+
+size_t frame_bound(size_t raw_bytes) {
+  return frame_header_bytes + std::max(ZSTD_compressBound(raw_bytes), raw_bytes + sizeof(uint64_t));
+}
 
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
                    int level) {
+  return encode_frame(tag, record_size, records, count, codec_for(level));
+}
+
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
+                   FrameCodec codec) {
   return encode_frame(tag, record_size, std::vector<Piece>{{records, count * record_size}},
-                      count, level);
+                      count, codec);
 }
 
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
                    size_t count, int level) {
+  return encode_frame(tag, record_size, pieces, count, codec_for(level));
+}
+
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
+                   size_t count, FrameCodec codec) {
   size_t raw = count * record_size;
-  Bytes frame(frame_bound(raw));
+  if (codec.raw) {
+    // One copy from the pages into the frame, then the checksum while it is hot.
+    Bytes frame(frame_header_bytes + raw + sizeof(uint64_t));
+    std::byte* payload = frame.data() + frame_header_bytes;
+    size_t at = 0;
+    for (const Piece& piece : pieces) {
+      if (at + piece.bytes > raw) throw Error(ErrorKind::internal, "encode_frame: pieces exceed the count");
+      std::memcpy(payload + at, piece.data, piece.bytes);
+      at += piece.bytes;
+    }
+    if (at != raw) throw Error(ErrorKind::internal, "encode_frame: pieces do not add up to the count");
+    put<uint64_t>(payload + raw, io::xxh64(payload, raw));
+    write_header(frame.data(), tag, record_size, count, raw + sizeof(uint64_t), flag_raw);
+    return frame;
+  }
+  const int level = codec.zstd_level;
+  Bytes frame(frame_header_bytes + ZSTD_compressBound(raw));
   ZSTD_CCtx* cctx = contexts().c;
   ZSTD_CCtx_reset(cctx, ZSTD_reset_session_and_parameters);
   ZSTD_CCtx_setParameter(cctx, ZSTD_c_compressionLevel, level);
@@ -110,7 +194,7 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
     ZSTD_inBuffer in{nullptr, 0, 0};
     ZSTD_compressStream2(cctx, &out, &in, ZSTD_e_end);
   }
-  write_header(frame.data(), tag, record_size, count, out.pos);
+  write_header(frame.data(), tag, record_size, count, out.pos, 0);
   frame.resize(frame_header_bytes + out.pos);
   return frame;
 }
@@ -126,10 +210,20 @@ FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t reco
   header.tag = get<uint64_t>(frame + 12);
   header.count = get<uint64_t>(frame + 20);
   header.payload_bytes = get<uint64_t>(frame + 28);
+  uint32_t flags = get<uint32_t>(frame + 8);
+  if ((flags & ~flag_raw) != 0) corrupt(where, "unknown flags");
+  header.raw = (flags & flag_raw) != 0;
   if (header.record_size != record_size) corrupt(where, "unexpected record size");
   if (header.payload_bytes != size - frame_header_bytes) corrupt(where, "payload size mismatch");
   if (header.count > max_records) corrupt(where, "more records than expected");
   size_t raw = header.count * record_size;
+  if (header.raw) {
+    const std::byte* payload = frame + frame_header_bytes;
+    if (header.payload_bytes != raw + sizeof(uint64_t)) corrupt(where, "raw payload size mismatch");
+    if (get<uint64_t>(payload + raw) != io::xxh64(payload, raw)) corrupt(where, "payload checksum mismatch");
+    std::memcpy(out, payload, raw);
+    return header;
+  }
   size_t got = ZSTD_decompressDCtx(contexts().d, out, raw, frame + frame_header_bytes,
                                    header.payload_bytes);
   if (ZSTD_isError(got)) corrupt(where, ZSTD_getErrorName(got));
@@ -147,7 +241,18 @@ FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_si
   return decode_frame_into(frame, size, record_size, out.data() + start, count, where);
 }
 
-ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expected_bytes) {
+std::optional<ScratchCodec> parse_scratch_codec(const std::string& text) {
+  if (text == "auto") return ScratchCodec::automatic;
+  if (text == "raw") return ScratchCodec::raw;
+  if (text == "zstd") return ScratchCodec::zstd;
+  return std::nullopt;
+}
+
+ScratchStore::ScratchStore(const std::filesystem::path& parent, uint64_t expected_bytes)
+    : ScratchStore(parent, expected_bytes, expected_bytes, ScratchCodec::zstd) {}
+
+ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expected_bytes,
+                           uint64_t expected_raw_bytes, ScratchCodec choice) {
   std::filesystem::path parent =
       parent_in.empty() ? std::filesystem::temp_directory_path() : parent_in;
   std::error_code ec;
@@ -155,8 +260,12 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
     throw Error(ErrorKind::resource, parent.string() + ": scratch directory does not exist");
   }
   struct statvfs fs {};
-  if (statvfs(parent.c_str(), &fs) == 0) {
-    uint64_t free_bytes = uint64_t(fs.f_bavail) * fs.f_frsize;
+  bool known = statvfs(parent.c_str(), &fs) == 0;
+  uint64_t free_bytes = known ? uint64_t(fs.f_bavail) * fs.f_frsize : UINT64_MAX;
+  bool raw = choice == ScratchCodec::raw || (choice == ScratchCodec::automatic && free_bytes >= expected_raw_bytes);
+  codec_ = raw ? FrameCodec::uncompressed() : FrameCodec::zstd();
+  if (raw) expected_bytes = expected_raw_bytes;
+  if (known) {
     if (free_bytes < expected_bytes) {
       throw Error(ErrorKind::resource,
                   parent.string() + ": scratch needs about " + config::format_size(expected_bytes) +

@@ -1,12 +1,21 @@
 #pragma once
 // The scratch store: a private directory of chunk files under --scratch (default: the
 // system temp dir) that lives exactly as long as the job. Each file is a sequence of
-// frames; a frame is one self-contained zstd chunk:
+// frames; a frame is one self-contained chunk of records:
 //
 //   header (48 bytes, little-endian): magic "QFCK", version u16 = 1, record size u16,
-//     reserved u32, tag u64 (what the frame holds, e.g. its first vertex index),
-//     record count u64, payload bytes u64, header checksum u64 (FNV-1a of the above)
-//   payload: one zstd frame (fast level, content checksum on) of count × record size
+//     flags u32 (bit 0: raw payload), tag u64 (what the frame holds, e.g. its first
+//     vertex index), record count u64, payload bytes u64, header checksum u64 (FNV-1a
+//     of the above)
+//   payload, zstd codec: one zstd frame (fast level, content checksum on) of
+//     count × record size
+//   payload, raw codec: the count × record size bytes themselves, then their XXH64
+//     (u64), so corruption is still caught
+//
+// Which codec: a scratch disk writes and reads raw bytes faster than one core
+// compresses them (zstd -1 ~ 400 MB/s per core, XXH64 ~ 10 GB/s), so raw is the
+// default when the scratch directory has room for it; zstd when space is short
+// (ScratchStore chooses; see ScratchCodec). Any decoder reads both.
 //
 // Contract
 // - The constructor checks free space for `expected_bytes` up front (Error(resource)
@@ -24,6 +33,7 @@
 #include <filesystem>
 #include <mutex>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -54,28 +64,62 @@ using Bytes = std::vector<std::byte, UninitializedAllocator<std::byte>>;
 template <class T>
 using UninitializedVector = std::vector<T, UninitializedAllocator<T>>;
 
+// How frames are encoded. `zstd_level` is used by the zstd codec only.
+struct FrameCodec {
+  bool raw = false;
+  int zstd_level = -1;
+  static FrameCodec zstd(int level = -1) { return {false, level}; }
+  static FrameCodec uncompressed() { return {true, -1}; }
+  bool operator==(const FrameCodec&) const = default;
+};
+// The codec of frames encoded without an explicit one (the `level` argument left at
+// its default): process-wide, zstd -1 unless set. A run sets it for its own length
+// with a DefaultFrameCodec (run_reencode: its ScratchStore's choice); while several
+// are alive (jobs sharing the process) the newest one wins, and when none is left the
+// base (set_default_frame_codec, zstd -1 at start) applies again. Any codec decodes
+// anywhere, so overlapping runs only trade speed for space, never correctness.
+FrameCodec default_frame_codec();
+void set_default_frame_codec(FrameCodec codec);  // the base
+class DefaultFrameCodec {
+ public:
+  explicit DefaultFrameCodec(FrameCodec codec);
+  ~DefaultFrameCodec();
+  DefaultFrameCodec(const DefaultFrameCodec&) = delete;
+  DefaultFrameCodec& operator=(const DefaultFrameCodec&) = delete;
+
+ private:
+  uint64_t id_;
+};
+// `level` argument meaning "the default codec".
+constexpr int default_frame_level = -1000000;
+
 struct FrameHeader {
   uint32_t record_size = 0;
   uint64_t tag = 0;
   uint64_t count = 0;
   uint64_t payload_bytes = 0;
+  bool raw = false;
 };
 constexpr size_t frame_header_bytes = 48;
 
-// Worst-case encoded size of `raw_bytes` of records (for leases).
+// Worst-case encoded size of `raw_bytes` of records, either codec (for leases).
 size_t frame_bound(size_t raw_bytes);
-// Compresses count records of record_size bytes each into one frame. Level -1 (zstd's
-// fast mode): measured on 20M faces, 10% less CPU than level 1 for 3% more bytes;
-// lower levels only add bytes.
+// Encodes count records of record_size bytes each into one frame. `level`: a zstd
+// level, or default_frame_level for the process's default codec. zstd level -1 (the
+// fast mode): measured on 20M faces, 10% less CPU than level 1 for 3% more bytes.
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
-                   int level = -1);
+                   int level = default_frame_level);
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
+                   FrameCodec codec);
 // Streaming variant: the records arrive as several pieces (pages), `count` in total.
 struct Piece {
   const void* data;
   size_t bytes;
 };
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
-                   size_t count, int level = -1);
+                   size_t count, int level = default_frame_level);
+Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
+                   size_t count, FrameCodec codec);
 // Checks and decompresses a frame; appends its records to `out` (resized). `where`
 // names the frame in messages.
 FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,
@@ -94,9 +138,21 @@ struct FrameRef {
   uint64_t tag = 0;
 };
 
+// What a ScratchStore encodes its frames with. automatic: raw when the directory has
+// room for the raw bytes (expected_raw_bytes), else zstd when it has room for
+// expected_bytes; raw / zstd: forced (each still checked for its own space).
+enum class ScratchCodec { automatic, raw, zstd };
+// "auto", "raw", "zstd" (nullopt for anything else).
+std::optional<ScratchCodec> parse_scratch_codec(const std::string& text);
+
 class ScratchStore {
  public:
   ScratchStore(const std::filesystem::path& parent, uint64_t expected_bytes);
+  // expected_bytes: compressed (zstd) estimate; expected_raw_bytes: raw estimate.
+  ScratchStore(const std::filesystem::path& parent, uint64_t expected_bytes, uint64_t expected_raw_bytes,
+               ScratchCodec choice);
+  // The codec chosen for this store's frames (zstd -1 with the two-argument constructor).
+  FrameCodec codec() const { return codec_; }
   ~ScratchStore();
   ScratchStore(const ScratchStore&) = delete;
   ScratchStore& operator=(const ScratchStore&) = delete;
@@ -126,6 +182,7 @@ class ScratchStore {
   File& file(uint32_t id);
 
   std::filesystem::path dir_;
+  FrameCodec codec_;
   std::mutex mutex_;
   std::deque<File> files_;  // a deque: references stay valid as files are added
   uint64_t written_ = 0, read_ = 0, on_disk_ = 0, peak_on_disk_ = 0;

@@ -141,7 +141,7 @@ void BucketSpill::flush(const std::vector<uint32_t>& which) {
     for (size_t p = job.first_page; p < job.first_page + job.pages; ++p) {
       pieces.push_back({b.pages[p].get(), p + 1 == b.pages.size() ? b.used_in_last : page_bytes_});
     }
-    encoded[k] = encode_frame(job.first_record, record_size_, pieces, job.records);
+    encoded[k] = encode_frame(job.first_record, record_size_, pieces, job.records, scratch_.codec());
     span.set_bytes(encoded[k].size());
   });
 

@@ -7,7 +7,7 @@
 //   fixed-size pages; no page is ever reallocated, so the memory held is exactly
 //   pages × page size, which stays within a third of the lease.
 // - When the pages would exceed that third, the largest buckets are flushed: their
-//   pages are compressed (in parallel, on the calling compute arena) into frames and
+//   pages are encoded with the store's codec (in parallel, on the calling compute arena) into frames and
 //   handed to the I/O thread. Compressed frames waiting for the disk stay within the
 //   other two thirds; if they would not, add() waits for the I/O thread (which never
 //   waits for compute, so this cannot deadlock).

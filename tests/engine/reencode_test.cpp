@@ -69,14 +69,24 @@ TEST(Reencode, ResidentVerticesGiveTheSameMesh) {
 TEST(Reencode, OutOfCoreDereferenceWithTinyWindowsGivesTheSameMesh) {
   TempDir dir;
   auto in = make_mesh(dir, 30'000, "in.ply.zst");
-  Governor governor(64ull << 20, 0);
-  ReencodeOptions options{.input = in, .output = dir / "out.obj", .scratch_dir = dir.path()};
-  options.load = {.faces_per_block = 2'000, .window_vertices = 997, .range_faces = 1'231, .force_out_of_core = true};
-  auto result = run_reencode(governor, options, {.progress = {}, .cancel = {}});
-  EXPECT_TRUE(result.report["out_of_core_dereference"].get<bool>());
-  EXPECT_GT(result.report["local_faces"].get<uint64_t>(), 0u);     // both dereference paths ran
-  EXPECT_GT(result.report["spanning_faces"].get<uint64_t>(), 0u);
-  expect_same_mesh(in, dir / "out.obj");
+  uint64_t written[2] = {0, 0};
+  for (ScratchCodec codec : {ScratchCodec::raw, ScratchCodec::zstd}) {
+    SCOPED_TRACE(codec == ScratchCodec::raw ? "raw" : "zstd");
+    Governor governor(64ull << 20, 0);
+    ReencodeOptions options{.input = in, .output = dir / "out.obj", .scratch_dir = dir.path()};
+    options.load = {.faces_per_block = 2'000, .window_vertices = 997, .range_faces = 1'231, .force_out_of_core = true};
+    options.scratch_codec = codec;
+    auto result = run_reencode(governor, options, {.progress = {}, .cancel = {}});
+    EXPECT_TRUE(result.report["out_of_core_dereference"].get<bool>());
+    EXPECT_GT(result.report["local_faces"].get<uint64_t>(), 0u);     // both dereference paths ran
+    EXPECT_GT(result.report["spanning_faces"].get<uint64_t>(), 0u);
+    EXPECT_EQ(result.report["scratch_codec"], codec == ScratchCodec::raw ? "raw" : "zstd");
+    written[codec == ScratchCodec::raw ? 0 : 1] = result.report["scratch_bytes_written"].get<uint64_t>();
+    expect_same_mesh(in, dir / "out.obj");
+    std::filesystem::remove(dir / "out.obj");
+  }
+  EXPECT_GT(written[0], 2 * written[1]);  // raw frames really are raw
+  EXPECT_FALSE(default_frame_codec().raw);  // the run's default codec ended with it
 }
 
 TEST(Reencode, ObjInputWithUnknownCountsGoesOutOfCore) {

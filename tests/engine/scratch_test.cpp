@@ -52,6 +52,75 @@ TEST(Frame, CorruptionIsDetected) {
   EXPECT_THROW(decode_frame(frame.data(), frame.size(), 4, out, "t"), Error);  // wrong record size
 }
 
+TEST(Frame, RawFramesRoundTripFromPiecesAndCatchCorruption) {
+  std::vector<uint32_t> values(3000);
+  std::iota(values.begin(), values.end(), 0);
+  std::vector<Piece> pieces{{values.data(), 4000}, {values.data() + 1000, 8000}};
+  Bytes frame = encode_frame(9, 4, pieces, 3000, FrameCodec::uncompressed());
+  // Header, the records as they are, their checksum.
+  ASSERT_EQ(frame.size(), frame_header_bytes + values.size() * 4 + 8);
+  EXPECT_EQ(std::memcmp(frame.data() + frame_header_bytes, values.data(), values.size() * 4), 0);
+  EXPECT_LE(frame.size(), frame_bound(values.size() * 4));
+  Bytes out;
+  FrameHeader header = decode_frame(frame.data(), frame.size(), 4, out, "t");
+  EXPECT_TRUE(header.raw);
+  EXPECT_EQ(header.tag, 9u);
+  EXPECT_EQ(header.count, 3000u);
+  ASSERT_EQ(out.size(), values.size() * 4);
+  EXPECT_EQ(std::memcmp(out.data(), values.data(), out.size()), 0);
+  for (size_t at : {frame_header_bytes + 5, frame.size() - 3, size_t(8)}) {  // a record, the checksum, the flags
+    Bytes bad = frame;
+    bad[at] ^= std::byte{0x10};
+    out.clear();
+    EXPECT_THROW(decode_frame(bad.data(), bad.size(), 4, out, "t"), Error) << at;
+  }
+  Bytes short_frame(frame.begin(), frame.end() - 1);
+  EXPECT_THROW(decode_frame(short_frame.data(), short_frame.size(), 4, out, "t"), Error);
+  // Pieces that do not add up to the count are a bug, not a frame.
+  EXPECT_THROW(encode_frame(0, 4, pieces, 2999, FrameCodec::uncompressed()), Error);
+}
+
+TEST(Frame, TheDefaultCodecIsZstdUnlessARunSetsIt) {
+  std::vector<uint64_t> values(10000, 3);
+  EXPECT_FALSE(default_frame_codec().raw);
+  Bytes out;
+  {
+    DefaultFrameCodec raw(FrameCodec::uncompressed());
+    Bytes frame = encode_frame(0, 8, values.data(), values.size());
+    EXPECT_TRUE(decode_frame(frame.data(), frame.size(), 8, out, "t").raw);
+    // An explicit level is zstd whatever the default.
+    Bytes zstd = encode_frame(0, 8, values.data(), values.size(), -1);
+    EXPECT_FALSE(decode_frame(zstd.data(), zstd.size(), 8, out, "t").raw);
+  }
+  EXPECT_FALSE(default_frame_codec().raw);
+  Bytes frame = encode_frame(0, 8, values.data(), values.size());
+  EXPECT_LT(frame.size(), values.size() * 8);
+  // Overlapping runs (two jobs in one process) end in any order: the base comes back.
+  auto first = std::make_unique<DefaultFrameCodec>(FrameCodec::uncompressed());
+  auto second = std::make_unique<DefaultFrameCodec>(FrameCodec::zstd(-3));
+  EXPECT_EQ(default_frame_codec(), FrameCodec::zstd(-3));
+  first.reset();
+  EXPECT_EQ(default_frame_codec(), FrameCodec::zstd(-3));
+  second.reset();
+  EXPECT_EQ(default_frame_codec(), FrameCodec::zstd());
+}
+
+TEST(ScratchStore, ChoosesRawWhenTheDirectoryHasRoomForIt) {
+  TempDir tmp;
+  EXPECT_TRUE(ScratchStore(tmp.path(), 1 << 20, 4 << 20, ScratchCodec::automatic).codec().raw);
+  // Room for the compressed frames only: zstd.
+  EXPECT_FALSE(ScratchStore(tmp.path(), 1 << 20, uint64_t(1) << 62, ScratchCodec::automatic).codec().raw);
+  EXPECT_FALSE(ScratchStore(tmp.path(), 1 << 20, 4 << 20, ScratchCodec::zstd).codec().raw);
+  EXPECT_FALSE(ScratchStore(tmp.path(), 1 << 20).codec().raw);  // the old constructor: zstd
+  // Forced raw still needs room for the raw bytes.
+  EXPECT_THROW(ScratchStore(tmp.path(), 1 << 20, uint64_t(1) << 62, ScratchCodec::raw), Error);
+  EXPECT_EQ(parse_scratch_codec("raw"), ScratchCodec::raw);
+  EXPECT_EQ(parse_scratch_codec("auto"), ScratchCodec::automatic);
+  EXPECT_EQ(parse_scratch_codec("zstd"), ScratchCodec::zstd);
+  EXPECT_FALSE(parse_scratch_codec("lz4"));
+  EXPECT_TRUE(std::filesystem::is_empty(tmp.path()));
+}
+
 TEST(ScratchStore, FilesAreCompleteOnlyWhenFinalizedAndAllGoAtTheEnd) {
   TempDir tmp;
   std::filesystem::path dir;

@@ -19,11 +19,12 @@ struct Record {
 // Spills `count` records over `buckets` buckets under a lease of `lease_bytes`; returns
 // the records read back per bucket, in order, and the frame count.
 std::pair<std::vector<std::vector<uint64_t>>, size_t> round_trip(uint64_t lease_bytes, uint32_t buckets,
-                                                                 uint64_t count) {
+                                                                 uint64_t count,
+                                                                 ScratchCodec codec = ScratchCodec::zstd) {
   TempDir dir;
   Governor governor(1ull << 30, 0);
   Job job(governor, {}, {.threads = 2});
-  ScratchStore scratch(dir.path(), 0);
+  ScratchStore scratch(dir.path(), 0, 0, codec);
   BucketSpill spill(job, scratch, "test", sizeof(Record), governor.try_acquire("spill", lease_bytes), buckets, "test");
   job.arena().execute([&] {
     for (uint64_t i = 0; i < count; ++i) {
@@ -59,6 +60,13 @@ TEST(BucketSpill, ASmallerLeaseGivesTheSameRecordsInMoreFrames) {
   for (const auto& bucket : small) EXPECT_TRUE(std::is_sorted(bucket.begin(), bucket.end()));  // order kept
   EXPECT_EQ(big_frames, 37u);         // everything fit: one frame per bucket at finish
   EXPECT_GT(small_frames, 4 * big_frames);  // spilled early and often
+}
+
+TEST(BucketSpill, RawFramesGiveTheSameRecords) {
+  auto [zstd, zstd_frames] = round_trip(BucketSpill::min_lease_bytes(sizeof(Record)), 37, 200'000);
+  auto [raw, raw_frames] = round_trip(BucketSpill::min_lease_bytes(sizeof(Record)), 37, 200'000, ScratchCodec::raw);
+  EXPECT_EQ(zstd, raw);
+  EXPECT_GT(raw_frames, 37u);
 }
 
 }  // namespace
