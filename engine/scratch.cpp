@@ -2,10 +2,14 @@
 
 #include <fcntl.h>
 #include <sys/statvfs.h>
+#include <sys/uio.h>
+#include <climits>
 #include <unistd.h>
 #include <zstd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <bit>
 #include <cerrno>
 #include <cstring>
 #include <memory>
@@ -135,6 +139,93 @@ FrameCodec codec_for(int level) {
 
 size_t frame_bound(size_t raw_bytes) {
   return frame_header_bytes + std::max(ZSTD_compressBound(raw_bytes), raw_bytes + sizeof(uint64_t));
+}
+
+namespace {
+// XXH64 over bytes that arrive in pieces: the same value as io::xxh64 of them laid end
+// to end (checked by the tests), so a raw frame written from pages verifies like one
+// encoded from a single buffer.
+class StreamingXxh64 {
+ public:
+  void add(const std::byte* p, size_t n) {
+    total_ += n;
+    if (held_ > 0) {
+      size_t take = std::min(n, size_t(32) - held_);
+      std::memcpy(buffer_ + held_, p, take);
+      held_ += take;
+      p += take;
+      n -= take;
+      if (held_ < 32) return;
+      stripe(buffer_);
+      held_ = 0;
+    }
+    for (; n >= 32; p += 32, n -= 32) stripe(p);
+    std::memcpy(buffer_, p, n);
+    held_ = n;
+  }
+  uint64_t finish() const {
+    uint64_t h;
+    if (total_ >= 32) {
+      h = std::rotl(v_[0], 1) + std::rotl(v_[1], 7) + std::rotl(v_[2], 12) + std::rotl(v_[3], 18);
+      for (uint64_t v : v_) h = (h ^ round(0, v)) * prime1 + prime4;
+    } else {
+      h = prime5;
+    }
+    h += total_;
+    const std::byte* p = buffer_;
+    const std::byte* end = buffer_ + held_;
+    for (; p + 8 <= end; p += 8) {
+      h ^= round(0, get<uint64_t>(p));
+      h = std::rotl(h, 27) * prime1 + prime4;
+    }
+    if (p + 4 <= end) {
+      h ^= uint64_t(get<uint32_t>(p)) * prime1;
+      h = std::rotl(h, 23) * prime2 + prime3;
+      p += 4;
+    }
+    for (; p < end; ++p) {
+      h ^= uint64_t(*p) * prime5;
+      h = std::rotl(h, 11) * prime1;
+    }
+    h ^= h >> 33;
+    h *= prime2;
+    h ^= h >> 29;
+    h *= prime3;
+    h ^= h >> 32;
+    return h;
+  }
+
+ private:
+  static constexpr uint64_t prime1 = 0x9E3779B185EBCA87ull, prime2 = 0xC2B2AE3D27D4EB4Full,
+                            prime3 = 0x165667B19E3779F9ull, prime4 = 0x85EBCA77C2B2AE63ull,
+                            prime5 = 0x27D4EB2F165667C5ull;
+  static uint64_t round(uint64_t acc, uint64_t input) { return std::rotl(acc + input * prime2, 31) * prime1; }
+  void stripe(const std::byte* p) {
+    for (int i = 0; i < 4; ++i) v_[i] = round(v_[i], get<uint64_t>(p + 8 * i));
+  }
+  uint64_t v_[4] = {prime1 + prime2, prime2, 0, 0 - prime1};
+  std::byte buffer_[32];
+  size_t held_ = 0;
+  uint64_t total_ = 0;
+};
+}  // namespace
+
+uint64_t xxh64_of_pieces(const std::vector<Piece>& pieces) {
+  StreamingXxh64 hash;
+  for (const Piece& piece : pieces) hash.add(static_cast<const std::byte*>(piece.data), piece.bytes);
+  return hash.finish();
+}
+
+RawFrameEnvelope raw_frame_envelope(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
+                                    size_t count) {
+  size_t raw = count * record_size, at = 0;
+  for (const Piece& piece : pieces) at += piece.bytes;
+  if (at != raw) throw Error(ErrorKind::internal, "raw_frame_envelope: pieces do not add up to the count");
+  RawFrameEnvelope envelope;
+  write_header(envelope.header.data(), tag, record_size, count, raw + sizeof(uint64_t), flag_raw);
+  put<uint64_t>(envelope.trailer.data(), xxh64_of_pieces(pieces));
+  envelope.bytes = frame_header_bytes + raw + sizeof(uint64_t);
+  return envelope;
 }
 
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const void* records, size_t count,
@@ -326,6 +417,49 @@ uint64_t ScratchStore::append(uint32_t id, const void* data, size_t size) {
     p += n;
     left -= size_t(n);
     f.size += uint64_t(n);
+  }
+  std::lock_guard lock(mutex_);
+  written_ += size;
+  on_disk_ += size;
+  peak_on_disk_ = std::max(peak_on_disk_, on_disk_);
+  return offset;
+}
+
+uint64_t ScratchStore::append_pieces(uint32_t id, const std::vector<Piece>& pieces) {
+  File& f = file(id);
+  if (f.final) throw Error(ErrorKind::internal, "scratch: append to finalized " + f.name);
+  if (f.fd < 0) {
+    f.fd = ::open(path_of(f).c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    if (f.fd < 0) io_failure(path_of(f), "create", errno);
+  }
+  std::vector<iovec> iov;
+  uint64_t size = 0;
+  for (const Piece& piece : pieces) {
+    if (piece.bytes == 0) continue;
+    iov.push_back({const_cast<void*>(piece.data), piece.bytes});
+    size += piece.bytes;
+  }
+  const uint64_t offset = f.size;
+  size_t next = 0;
+  while (next < iov.size()) {
+    int n_iov = int(std::min<size_t>(iov.size() - next, IOV_MAX));
+    ssize_t n = ::pwritev(f.fd, iov.data() + next, n_iov, off_t(f.size));
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      io_failure(path_of(f), "write", errno);
+    }
+    f.size += uint64_t(n);
+    // Skip what was written; a short write leaves the rest of a piece for the next call.
+    for (size_t left = size_t(n); left > 0;) {
+      if (left >= iov[next].iov_len) {
+        left -= iov[next].iov_len;
+        ++next;
+      } else {
+        iov[next].iov_base = static_cast<char*>(iov[next].iov_base) + left;
+        iov[next].iov_len -= left;
+        left = 0;
+      }
+    }
   }
   std::lock_guard lock(mutex_);
   written_ += size;

@@ -27,6 +27,7 @@
 //   encode_frame/decode_frame are pure CPU: call them on compute threads.
 // - Every failure is Error(resource) (disk full, read-only, vanished) or
 //   Error(internal) for a corrupt frame, each naming the file.
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <deque>
@@ -120,6 +121,19 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
                    size_t count, int level = default_frame_level);
 Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
                    size_t count, FrameCodec codec);
+// A raw frame without copying its records: the header and the checksum trailer to
+// write around the pieces (e.g. with ScratchStore::append_pieces), so that spilled
+// pages go to the disk as they are. Same bytes as encode_frame with the raw codec.
+// XXH64 of the pieces laid end to end (without joining them).
+uint64_t xxh64_of_pieces(const std::vector<Piece>& pieces);
+struct RawFrameEnvelope {
+  std::array<std::byte, frame_header_bytes> header;
+  std::array<std::byte, sizeof(uint64_t)> trailer;
+  uint64_t bytes = 0;  // the whole frame: header + records + trailer
+};
+RawFrameEnvelope raw_frame_envelope(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
+                                    size_t count);
+
 // Checks and decompresses a frame; appends its records to `out` (resized). `where`
 // names the frame in messages.
 FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_size, Bytes& out,
@@ -162,6 +176,8 @@ class ScratchStore {
   uint32_t create_file(const std::string& name);
   // I/O thread only. Returns the frame's offset in the file.
   uint64_t append(uint32_t file, const void* data, size_t size);
+  // The same for bytes in several pieces, written in order as one (vectored) write.
+  uint64_t append_pieces(uint32_t file, const std::vector<Piece>& pieces);
   void read(uint32_t file, uint64_t offset, void* out, size_t size);
   void finalize(uint32_t file);
   void remove(uint32_t file);

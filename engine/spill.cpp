@@ -103,8 +103,93 @@ void BucketSpill::wait_for_room(uint64_t bytes) {
   shared_->in_flight += bytes;
 }
 
+// Raw codec: no encoding, so no copy. Each frame is its pages between a header and a
+// checksum trailer (the checksums are the only compute, done in parallel); the pages
+// move to the I/O task and are freed when written.
+void BucketSpill::flush_raw(const std::vector<uint32_t>& which) {
+  job_.check();
+  struct Frame {
+    uint32_t bucket;
+    std::vector<std::unique_ptr<std::byte[]>> pages;
+    std::vector<Piece> pieces;  // header, the pages' used bytes, trailer
+    uint64_t first_record, records;
+    RawFrameEnvelope envelope;
+  };
+  const size_t pages_per_frame = std::max<size_t>(frame_limit_bytes / page_bytes_, 1);
+  const uint64_t records_per_page = page_bytes_ / record_size_;
+  std::vector<Frame> frames;
+  uint64_t held = 0;
+  for (uint32_t i : which) {
+    Bucket& b = buckets_[i];
+    held += b.pages.size() * page_bytes_;
+    uint64_t first_record = b.records - b.buffered;
+    for (size_t p = 0; p < b.pages.size(); p += pages_per_frame) {
+      size_t n = std::min(pages_per_frame, b.pages.size() - p);
+      bool last = p + n == b.pages.size();
+      Frame frame{i, {}, {}, first_record, last ? (n - 1) * records_per_page + b.used_in_last / record_size_ : n * records_per_page, {}};
+      for (size_t k = p; k < p + n; ++k) {
+        frame.pieces.push_back({b.pages[k].get(), k + 1 == b.pages.size() ? b.used_in_last : page_bytes_});
+        frame.pages.push_back(std::move(b.pages[k]));
+      }
+      first_record += frame.records;
+      frames.push_back(std::move(frame));
+    }
+    pages_held_ -= b.pages.size();
+    b.pages.clear();
+    b.pages.shrink_to_fit();
+    b.used_in_last = 0;
+    b.buffered = 0;
+  }
+  // The pages are now in flight, not held: wait until the I/O thread has room for them.
+  wait_for_room(held);
+  job_.check();
+  tbb::parallel_for(size_t(0), frames.size(), [&](size_t k) {
+    Span span(&job_.trace(), &job_.activity(), "checksum", Span::Kind::compute);
+    frames[k].envelope = raw_frame_envelope(frames[k].first_record, record_size_, frames[k].pieces, frames[k].records);
+    span.set_bytes(frames[k].envelope.bytes);
+  });
+  for (Frame& frame : frames) {
+    Bucket& b = buckets_[frame.bucket];
+    if (b.file == UINT32_MAX) b.file = scratch_.create_file(name_ + "-" + std::to_string(frame.bucket));
+    uint64_t size = frame.envelope.bytes;
+    b.frames.push_back({b.file, b.file_bytes, size, frame.records, frame.first_record});
+    max_frame_records_ = std::max<uint64_t>(max_frame_records_, frame.records);
+    max_frame_bytes_ = std::max<uint64_t>(max_frame_bytes_, size);
+    b.file_bytes += size;
+    encoded_bytes_ += size;
+    uint64_t memory = frame.pages.size() * page_bytes_;
+    auto owned = std::make_shared<Frame>(std::move(frame));
+    owned->pieces.insert(owned->pieces.begin(), {owned->envelope.header.data(), owned->envelope.header.size()});
+    owned->pieces.push_back({owned->envelope.trailer.data(), owned->envelope.trailer.size()});
+    uint32_t file = b.file;
+    ScratchStore* scratch = &scratch_;
+    auto shared = shared_;
+    StageStats* stage = &job_.stage(stage_);
+    job_.io().submit(
+        "scratch write",
+        [owned, file, memory, scratch, shared, stage]() mutable {
+          struct Done {
+            std::shared_ptr<Shared> shared;
+            uint64_t size;
+            ~Done() {
+              {
+                std::lock_guard lock(shared->mutex);
+                shared->in_flight -= size;
+              }
+              shared->written.notify_all();
+            }
+          } done{shared, memory};
+          scratch->append_pieces(file, owned->pieces);
+          stage->bytes_written += owned->envelope.bytes;
+          owned.reset();
+        },
+        job_.error_handler(), memory);
+  }
+}
+
 void BucketSpill::flush(const std::vector<uint32_t>& which) {
   if (which.empty()) return;
+  if (scratch_.codec().raw) return flush_raw(which);
   job_.check();
   uint64_t bound = 0;
   for (uint32_t i : which) bound += frame_bound(buckets_[i].buffered * record_size_);

@@ -8,7 +8,8 @@
 //   pages × page size, which stays within a third of the lease.
 // - When the pages would exceed that third, the largest buckets are flushed: their
 //   pages are encoded with the store's codec (in parallel, on the calling compute arena) into frames and
-//   handed to the I/O thread. Compressed frames waiting for the disk stay within the
+//   handed to the I/O thread (raw codec: the pages themselves go, between a header
+//   and a checksum, with no copy; they count as in flight from then on). Frames waiting for the disk stay within the
 //   other two thirds; if they would not, add() waits for the I/O thread (which never
 //   waits for compute, so this cannot deadlock).
 // - A smaller lease means smaller pages and earlier, more frequent flushes; nothing
@@ -66,6 +67,7 @@ class BucketSpill {
   };
   void flush_largest();
   void flush(const std::vector<uint32_t>& which);
+  void flush_raw(const std::vector<uint32_t>& which);
   void wait_for_room(uint64_t bytes);
 
   Job& job_;

@@ -7,6 +7,7 @@
 #include <numeric>
 
 #include "test_support.hpp"
+#include "io/hash64.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -78,6 +79,40 @@ TEST(Frame, RawFramesRoundTripFromPiecesAndCatchCorruption) {
   EXPECT_THROW(decode_frame(short_frame.data(), short_frame.size(), 4, out, "t"), Error);
   // Pieces that do not add up to the count are a bug, not a frame.
   EXPECT_THROW(encode_frame(0, 4, pieces, 2999, FrameCodec::uncompressed()), Error);
+}
+
+TEST(Frame, ARawFrameWrittenFromPiecesIsTheSameBytes) {
+  std::vector<uint8_t> bytes(100'003);
+  for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 2654435761u >> 13);
+  // Piece sizes that cut the hash's 32-byte stripes everywhere, and empty pieces.
+  for (size_t cut : {1, 7, 31, 32, 33, 4096, 50'000, 100'003}) {
+    std::vector<Piece> pieces;
+    for (size_t at = 0; at < bytes.size(); at += cut) {
+      pieces.push_back({bytes.data() + at, std::min(cut, bytes.size() - at)});
+      if (at == 0) pieces.push_back({bytes.data(), 0});
+    }
+    EXPECT_EQ(xxh64_of_pieces(pieces), io::xxh64(bytes.data(), bytes.size())) << cut;
+  }
+  for (size_t n : {0, 5, 31, 32, 64, 99}) EXPECT_EQ(xxh64_of_pieces({{bytes.data(), n}}), io::xxh64(bytes.data(), n)) << n;
+  std::vector<Piece> pieces{{bytes.data(), 40'000}, {bytes.data() + 40'000, 60'000}};
+  Bytes frame = encode_frame(3, 4, pieces, 25'000, FrameCodec::uncompressed());
+  RawFrameEnvelope envelope = raw_frame_envelope(3, 4, pieces, 25'000);
+  ASSERT_EQ(envelope.bytes, frame.size());
+  EXPECT_EQ(std::memcmp(envelope.header.data(), frame.data(), frame_header_bytes), 0);
+  EXPECT_EQ(std::memcmp(envelope.trailer.data(), frame.data() + frame.size() - 8, 8), 0);
+  // And append_pieces writes it as one frame that decodes.
+  TempDir tmp;
+  ScratchStore store(tmp.path(), 1 << 20);
+  uint32_t f = store.create_file("raw");
+  std::vector<Piece> all{{envelope.header.data(), envelope.header.size()}, pieces[0], pieces[1],
+                         {envelope.trailer.data(), envelope.trailer.size()}};
+  EXPECT_EQ(store.append_pieces(f, all), 0u);
+  store.finalize(f);
+  Bytes back(envelope.bytes), out;
+  store.read(f, 0, back.data(), back.size());
+  EXPECT_EQ(decode_frame(back.data(), back.size(), 4, out, "t").count, 25'000u);
+  EXPECT_EQ(std::memcmp(out.data(), bytes.data(), 100'000), 0);
+  EXPECT_EQ(store.bytes_written(), envelope.bytes);
 }
 
 TEST(Frame, TheDefaultCodecIsZstdUnlessARunSetsIt) {
