@@ -528,8 +528,10 @@ void PatchDecimator::prepare_round() {
   tbb::enumerable_thread_specific<Scratch> scratch;
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
+    // Only a touched vertex can have lost a face: the others' chains are compact.
+    if (!touched_[v]) return;
     compact_chain(v);
-    if (touched_[v]) update_border(v, scratch.local());
+    update_border(v, scratch.local());
   });
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
