@@ -6,8 +6,12 @@
 #
 #   bench/reencode.sh [FACES] [BUILD_DIR] [WORK_DIR] [BUDGETS...]
 #   bench/reencode.sh 100M build /tmp/qemflow-reencode 256M 1G 4G     (the defaults)
+#   SCRATCH_CODEC=zstd bench/reencode.sh ...    force the scratch codec (default: auto)
+#   CSV=bench/results/reencode.csv bench/reencode.sh ...   also write the rows as CSV
 #
 # Prints a Markdown table; every file it makes lives in WORK_DIR and is deleted at exit.
+# The machine may be shared: each row carries the 1-minute load average at its end, and
+# CPU seconds (user + system of the whole process) beside wall seconds.
 set -euo pipefail
 FACES=${1:-100M}
 BUILD=${2:-build}
@@ -33,12 +37,13 @@ ROWS=()
 for BUDGET in "${BUDGETS[@]}"; do
   echo "re-encode at --mem-budget $BUDGET..." >&2
   "$DRIVER" reencode "$WORK/in.ply" "$WORK/out.ply" --mem-budget "$BUDGET" --scratch "$WORK" \
-    --report "$WORK/report-$BUDGET.json" --quiet
+    --report "$WORK/report-$BUDGET.json" --quiet --scratch-codec "${SCRATCH_CODEC:-auto}"
   rm -f "$WORK/out.ply"
-  ROWS+=("$(/usr/bin/python3 - "$WORK/report-$BUDGET.json" "$BUDGET" "$IO_SECONDS" <<'PY'
-import json, sys
+  LOAD=$(cut -d' ' -f1 /proc/loadavg)
+  ROWS+=("$(/usr/bin/python3 - "$WORK/report-$BUDGET.json" "$BUDGET" "$IO_SECONDS" "$LOAD" "${CSV:-}" <<'PY'
+import json, os, sys
 r = json.load(open(sys.argv[1]))
-budget, io = sys.argv[2], float(sys.argv[3])
+budget, io, load, csv = sys.argv[2], float(sys.argv[3]), sys.argv[4], sys.argv[5]
 wall = r["wall_seconds"]
 peak = r["peak_rss_bytes"] / 2**20
 ok = "yes" if r["peak_rss_bytes"] <= r["budget_bytes"] else "**NO**"
@@ -48,7 +53,16 @@ overlap = 100 * r["overlap_seconds"] / r["io_busy_seconds"] if r["io_busy_second
 mode = "out of core" if r["out_of_core_dereference"] else "resident"
 print(f"| {budget} | {r['output_faces']:,} | {mode} | {wall:.1f} | {peak:.0f} | {ok} | {mbps:.0f} | "
       f"{wall / io:.1f}x | {pct(r['io_busy_seconds']):.0f}% | {pct(r['compute_busy_seconds']):.0f}% | "
-      f"{overlap:.0f}% | {r['cpu_seconds']:.1f} | {r['scratch_bytes_written'] / 1e9:.2f} |")
+      f"{overlap:.0f}% | {r['cpu_seconds']:.1f} | {r['scratch_codec']} | {r['scratch_bytes_written'] / 1e9:.2f} | {load} |")
+if csv:
+    header = not os.path.exists(csv)
+    with open(csv, "a") as f:
+        if header:
+            f.write("budget,faces,dereference,wall_s,peak_rss_mib,rss_le_budget,mb_per_s,io_floor_s,vs_io_floor,"
+                    "io_busy_pct,compute_busy_pct,overlap_pct,cpu_s,scratch_codec,scratch_gb,load_avg\n")
+        f.write(f"{budget},{r['output_faces']},{mode},{wall:.2f},{peak:.0f},{ok.strip('*').lower()},{mbps:.0f},{io:.2f},"
+                f"{wall / io:.2f},{pct(r['io_busy_seconds']):.0f},{pct(r['compute_busy_seconds']):.0f},{overlap:.0f},"
+                f"{r['cpu_seconds']:.2f},{r['scratch_codec']},{r['scratch_bytes_written'] / 1e9:.2f},{load}\n")
 PY
 )")
 done
@@ -57,6 +71,6 @@ echo
 echo "Input: $FACES faces, $(( IN_BYTES / 1000000 )) MB binary PLY; $(nproc) cores; load average $(cut -d' ' -f1 /proc/loadavg) at the end."
 echo "I/O floor (read input + write the same bytes on the I/O thread alone): ${IO_SECONDS} s."
 echo
-echo "| budget | faces | dereference | wall s | peak RSS MiB | RSS <= budget | MB/s in+out | vs I/O floor | I/O busy | compute busy | overlap | CPU s | scratch GB |"
-echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+echo "| budget | faces | dereference | wall s | peak RSS MiB | RSS <= budget | MB/s in+out | vs I/O floor | I/O busy | compute busy | overlap | CPU s | scratch codec | scratch GB | load avg |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 printf '%s\n' "${ROWS[@]}"

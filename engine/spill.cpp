@@ -103,6 +103,38 @@ void BucketSpill::wait_for_room(uint64_t bytes) {
   shared_->in_flight += bytes;
 }
 
+// Queues the write of one frame (`pieces`, `bytes` in all) on the I/O thread; `owner`
+// keeps its memory (`memory` bytes in flight) until written, failed or dropped.
+void BucketSpill::submit_write(uint32_t file, std::vector<Piece> pieces, uint64_t bytes,
+                               std::shared_ptr<void> owner, uint64_t memory) {
+  ScratchStore* scratch = &scratch_;
+  StageStats* stage = &job_.stage(stage_);
+  struct Done {  // the in-flight bytes go back whatever happens to the task
+    std::shared_ptr<Shared> shared;
+    uint64_t size;
+    Done(std::shared_ptr<Shared> s, uint64_t n) : shared(std::move(s)), size(n) {}
+    Done(const Done&) = delete;
+    ~Done() {
+      {
+        std::lock_guard lock(shared->mutex);
+        shared->in_flight -= size;
+      }
+      shared->written.notify_all();
+    }
+  };
+  auto done = std::make_shared<Done>(shared_, memory);
+  job_.io().submit(
+      "scratch write",
+      [pieces = std::move(pieces), owner = std::move(owner), done = std::move(done), file, bytes, scratch,
+       stage]() mutable {
+        scratch->append_pieces(file, pieces);
+        stage->bytes_written += bytes;
+        owner.reset();
+        done.reset();
+      },
+      job_.error_handler(), memory);
+}
+
 // Raw codec: no encoding, so no copy. Each frame is its pages between a header and a
 // checksum trailer (the checksums are the only compute, done in parallel); the pages
 // move to the I/O task and are freed when written.
@@ -161,29 +193,7 @@ void BucketSpill::flush_raw(const std::vector<uint32_t>& which) {
     auto owned = std::make_shared<Frame>(std::move(frame));
     owned->pieces.insert(owned->pieces.begin(), {owned->envelope.header.data(), owned->envelope.header.size()});
     owned->pieces.push_back({owned->envelope.trailer.data(), owned->envelope.trailer.size()});
-    uint32_t file = b.file;
-    ScratchStore* scratch = &scratch_;
-    auto shared = shared_;
-    StageStats* stage = &job_.stage(stage_);
-    job_.io().submit(
-        "scratch write",
-        [owned, file, memory, scratch, shared, stage]() mutable {
-          struct Done {
-            std::shared_ptr<Shared> shared;
-            uint64_t size;
-            ~Done() {
-              {
-                std::lock_guard lock(shared->mutex);
-                shared->in_flight -= size;
-              }
-              shared->written.notify_all();
-            }
-          } done{shared, memory};
-          scratch->append_pieces(file, owned->pieces);
-          stage->bytes_written += owned->envelope.bytes;
-          owned.reset();
-        },
-        job_.error_handler(), memory);
+    submit_write(b.file, owned->pieces, owned->envelope.bytes, owned, memory);
   }
 }
 
@@ -256,30 +266,8 @@ void BucketSpill::flush(const std::vector<uint32_t>& which) {
   }
   for (size_t k = 0; k < jobs.size(); ++k) {
     auto frame = std::make_shared<Bytes>(std::move(encoded[k]));
-    uint32_t file = buckets_[jobs[k].bucket].file;
-    uint64_t size = frame->capacity();
-    ScratchStore* scratch = &scratch_;
-    auto shared = shared_;
-    StageStats* stage = &job_.stage(stage_);
-    job_.io().submit(
-        "scratch write",
-        [frame, file, size, scratch, shared, stage]() mutable {
-          struct Done {
-            std::shared_ptr<Shared> shared;
-            uint64_t size;
-            ~Done() {
-              {
-                std::lock_guard lock(shared->mutex);
-                shared->in_flight -= size;
-              }
-              shared->written.notify_all();
-            }
-          } done{shared, size};
-          scratch->append(file, frame->data(), frame->size());
-          stage->bytes_written += frame->size();
-          frame.reset();
-        },
-        job_.error_handler(), size);
+    submit_write(buckets_[jobs[k].bucket].file, {{frame->data(), frame->size()}}, frame->size(), frame,
+                 frame->capacity());
   }
 }
 

@@ -68,6 +68,8 @@ class BucketSpill {
   void flush_largest();
   void flush(const std::vector<uint32_t>& which);
   void flush_raw(const std::vector<uint32_t>& which);
+  void submit_write(uint32_t file, std::vector<Piece> pieces, uint64_t bytes, std::shared_ptr<void> owner,
+                    uint64_t memory);
   void wait_for_room(uint64_t bytes);
 
   Job& job_;
