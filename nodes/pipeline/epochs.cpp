@@ -236,28 +236,9 @@ uint32_t morton(const Point& p, const Box& box) {
 
 // ---------------------------------------------------------------- conversion
 
-// Degrees (faces per vertex) over the blocks: a stand-in until the loader gives them.
-std::vector<uint32_t> count_degrees(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, Lease& lease) {
-  lease = job.governor().acquire(job.owner("degrees"), mesh.vertex_count * 4, mesh.vertex_count * 4);
-  std::vector<uint32_t> degree(mesh.vertex_count, 0);
-  std::vector<FrameRef> frames;
-  for (const auto& b : mesh.blocks) frames.insert(frames.end(), b.begin(), b.end());
-  engine::for_each_frame(
-      job, scratch, "convert", "block frames", frames, mesh.block_record_size, {},
-      [&](const FrameHeader& header, Bytes& records, Lease&) {
-        for (uint64_t i = 0; i < header.count; ++i) {
-          Triangle t;
-          std::memcpy(&t, records.data() + i * mesh.block_record_size + 8, sizeof t);
-          for (uint64_t v : t) ++degree[v];
-        }
-      },
-      0);
-  return degree;
-}
-
 // Blocks → state chunks of one owner each, with degrees; per-owner face counts.
 void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const Partition& partition,
-                    const std::vector<uint32_t>& degree, uint64_t chunk_faces, MeshState& state) {
+                    uint64_t chunk_faces, MeshState& state) {
   engine::StageTimer timer(job, "convert");
   std::vector<FrameRef> frames;
   for (const auto& b : mesh.blocks) frames.insert(frames.end(), b.begin(), b.end());
@@ -274,12 +255,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
         std::vector<engine::BlockFace> faces(header.count);
         engine::unpack_block_faces(records.data(), header.count, mesh.block_record_size, faces.data());
         std::vector<std::pair<uint32_t, uint32_t>> by_owner(faces.size());  // (owner, index)
-        for (size_t i = 0; i < faces.size(); ++i) {
-          const auto& p = faces[i].positions;
-          const Point bary = {(p[0][0] + p[1][0] + p[2][0]) / 3, (p[0][1] + p[1][1] + p[2][1]) / 3,
-                              (p[0][2] + p[1][2] + p[2][2]) / 3};
-          by_owner[i] = {partition.owner(bary), uint32_t(i)};
-        }
+        for (size_t i = 0; i < faces.size(); ++i) by_owner[i] = {partition.owner_of(faces[i]), uint32_t(i)};
         std::sort(by_owner.begin(), by_owner.end());
         std::vector<Out> result;
         for (size_t first = 0; first < by_owner.size();) {
@@ -296,7 +272,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
               VertexRecord r;
               r.gid = f.vertices[k];
               r.position = f.positions[k];
-              r.degree = degree[r.gid];
+              r.degree = f.degree[k];
               vr.push_back(r);
             }
           }
@@ -645,41 +621,6 @@ struct Runner {
 
 }  // namespace
 
-Partition slab_partition(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, uint32_t patches) {
-  Partition part;
-  part.patches = std::max<uint32_t>(1, patches);
-  int axis = 0;
-  for (int k = 1; k < 3; ++k)
-    if (mesh.grid.max[k] - mesh.grid.min[k] > mesh.grid.max[axis] - mesh.grid.min[axis]) axis = k;
-  const double lo = mesh.grid.min[axis], hi = mesh.grid.max[axis];
-  constexpr size_t kBins = 1 << 14;
-  auto bin_of = [lo, hi](double x) {
-    const double t = hi > lo ? (x - lo) / (hi - lo) : 0.0;
-    return size_t(std::clamp(t * double(kBins), 0.0, double(kBins - 1)));
-  };
-  std::vector<uint64_t> hist(kBins, 0);
-  std::vector<FrameRef> frames;
-  for (const auto& b : mesh.blocks) frames.insert(frames.end(), b.begin(), b.end());
-  engine::for_each_frame(
-      job, scratch, "partition", "block frames", frames, mesh.block_record_size, {},
-      [&](const FrameHeader& header, Bytes& records, Lease&) {
-        std::vector<engine::BlockFace> faces(header.count);
-        engine::unpack_block_faces(records.data(), header.count, mesh.block_record_size, faces.data());
-        for (const auto& f : faces)
-          ++hist[bin_of((f.positions[0][axis] + f.positions[1][axis] + f.positions[2][axis]) / 3)];
-      },
-      0);
-  // Bin → patch by cumulative count (whole bins, so the rule is a pure function of x).
-  auto bin_owner = std::make_shared<std::vector<uint32_t>>(kBins);
-  uint64_t cumulative = 0;
-  for (size_t b = 0; b < kBins; ++b) {
-    (*bin_owner)[b] = uint32_t(std::min<uint64_t>(part.patches - 1, cumulative * part.patches / std::max<uint64_t>(1, mesh.face_count)));
-    cumulative += hist[b];
-  }
-  part.owner = [bin_owner, bin_of, axis](const Point& bary) { return (*bin_owner)[bin_of(bary[axis])]; };
-  return part;
-}
-
 OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const OocOptions& options) {
   OocResult result;
   OocStats& st = result.stats;
@@ -691,36 +632,18 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t in_core_faces =
       options.in_core_faces ? options.in_core_faces : uint64_t(0.8 * double(capacity)) / kInCoreBytesPerFace;
 
-  // Patches: each (owned + halo, about 1.5x owned) fits half the capacity.
-  uint32_t patches = options.patches;
-  if (patches == 0) {
-    const uint64_t per_patch = std::max<uint64_t>(1, uint64_t(0.5 * double(capacity)) / (kPatchBytesPerFace * 3 / 2));
-    patches = uint32_t(std::max<uint64_t>(2, (mesh.face_count + per_patch - 1) / per_patch));
-  }
-  Partition partition;
-  {
-    engine::StageTimer timer(job, "partition");
-    partition = options.partition ? options.partition(job, scratch, mesh, patches) : slab_partition(job, scratch, mesh, patches);
-  }
-  st.patches = partition.patches;
+  const Partition partition = partition_blocks(job, scratch, mesh, options.partition);
+  st.patches = partition.clusters;
 
   auto state = std::make_unique<MeshState>();
   state->file = scratch.create_file("state-0");
-  {
-    Lease degree_lease;
-    std::vector<uint32_t> degree;
-    {
-      engine::StageTimer timer(job, "convert");
-      degree = count_degrees(job, scratch, mesh, degree_lease);
-    }
-    convert_blocks(job, scratch, mesh, partition, degree, options.chunk_faces, *state);
-  }
+  convert_blocks(job, scratch, mesh, partition, options.chunk_faces, *state);
 
   Runner runner{job, scratch, options, st};
-  runner.patches = partition.patches;
+  runner.patches = partition.clusters;
   runner.rings = options.initial_rings ? options.initial_rings
                                        : int(kTrustSpread * epoch.epoch_rounds + kDecisionRadius + 2);
-  runner.margin_factor.assign(partition.patches, 1.5);
+  runner.margin_factor.assign(partition.clusters, 1.5);
   st.max_rings = runner.rings;
 
   DecimateParams params = options.simplify.params;

@@ -40,28 +40,14 @@
 #include "engine/job.hpp"
 #include "engine/scratch.hpp"
 #include "nodes/decimate/simplify.hpp"
+#include "nodes/pipeline/partition_stage.hpp"
 
 namespace qemflow::nodes::pipeline {
 
-// Owner patch of a face from its barycenter (the partition stage's classifier).
-using OwnerFunction = std::function<uint32_t(const Point& barycenter)>;
-struct Partition {
-  uint32_t patches = 1;
-  OwnerFunction owner;
-};
-// Builds the partition from the loaded blocks (a real one: nodes/pipeline/partition_stage).
-using PartitionBuilder =
-    std::function<Partition(engine::Job&, engine::ScratchStore&, const engine::LoadedMesh&, uint32_t patches)>;
-
-// Stand-in partition until the classifier lands: slabs of equal face counts along the
-// longest axis of the blocks' box (one pass over the blocks for a histogram).
-Partition slab_partition(engine::Job& job, engine::ScratchStore& scratch, const engine::LoadedMesh& mesh,
-                         uint32_t patches);
-
 struct OocOptions {
   SimplifyOptions simplify;          // target, epoch options, decimator params (weld: loader's)
-  uint32_t patches = 0;              // 0: from the budget
-  PartitionBuilder partition;        // empty: slab_partition
+  // The paper's partition (partition_stage.hpp); clusters 0: from the budget (clusters_for).
+  PartitionOptions partition;
   // Finish in core once the state has at most this many faces; 0: from the budget.
   // Tests set 1 to keep the out-of-core epochs going to the end.
   uint64_t in_core_faces = 0;
@@ -107,6 +93,7 @@ struct OocCommand {
   int threads = 0;
   bool quiet = false;
   bool double_precision = false;  // as `--double`
+  bool weld = true;               // --no-weld: false (the loader's weld, as in core)
   OocOptions options;
 };
 nlohmann::json run_ooc_command(const OocCommand& command);

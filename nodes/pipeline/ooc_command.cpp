@@ -43,7 +43,9 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     engine::LoadedMesh mesh;
     {
       engine::StageTimer timer(job, "load");
-      mesh = engine::load_into_blocks(job, scratch, command.input, {});
+      engine::LoadOptions load_options;
+      load_options.weld = command.weld;
+      mesh = engine::load_into_blocks(job, scratch, command.input, load_options);
     }
     mesh.vertices.resident = {};
     mesh.resident_lease.release();
