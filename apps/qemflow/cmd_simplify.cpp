@@ -81,7 +81,8 @@ void run_simplify(const SimplifyArgs& args) {
     o.simplify.candidate_fraction = args.candidate_fraction;
     o.simplify.epoch_rounds = args.epoch_rounds;
     o.simplify.params = args.params;
-    o.patches = args.clusters == "auto" ? 0 : uint32_t(std::stoul(args.clusters));
+    o.partition.clusters = args.clusters == "auto" ? 0 : uint32_t(std::stoul(args.clusters));
+    command.weld = !args.no_weld;
     o.in_core_faces = args.in_core_faces;
     nodes::pipeline::run_ooc_command(command);
     return;
