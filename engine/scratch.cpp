@@ -141,87 +141,9 @@ size_t frame_bound(size_t raw_bytes) {
   return frame_header_bytes + std::max(ZSTD_compressBound(raw_bytes), raw_bytes + sizeof(uint64_t));
 }
 
-namespace {
-// XXH64 over bytes that arrive in pieces: the same value as io::xxh64 of them laid end
-// to end (checked by the tests), so a raw frame written from pages verifies like one
-// encoded from a single buffer.
-class StreamingXxh64 {
- public:
-  void add(const std::byte* p, size_t n) {
-    total_ += n;
-    if (held_ > 0) {
-      size_t take = std::min(n, size_t(32) - held_);
-      std::memcpy(buffer_ + held_, p, take);
-      held_ += take;
-      p += take;
-      n -= take;
-      if (held_ < 32) return;
-      stripe(buffer_);
-      held_ = 0;
-    }
-    // The lanes in locals: through v_ the compiler would store them after every stripe
-    // (the input is std::byte, which may alias them); that was half again slower.
-    uint64_t v1 = v_[0], v2 = v_[1], v3 = v_[2], v4 = v_[3];
-    for (; n >= 32; p += 32, n -= 32) {
-      v1 = round(v1, get<uint64_t>(p));
-      v2 = round(v2, get<uint64_t>(p + 8));
-      v3 = round(v3, get<uint64_t>(p + 16));
-      v4 = round(v4, get<uint64_t>(p + 24));
-    }
-    v_[0] = v1, v_[1] = v2, v_[2] = v3, v_[3] = v4;
-    std::memcpy(buffer_, p, n);
-    held_ = n;
-  }
-  uint64_t finish() const {
-    uint64_t h;
-    if (total_ >= 32) {
-      h = std::rotl(v_[0], 1) + std::rotl(v_[1], 7) + std::rotl(v_[2], 12) + std::rotl(v_[3], 18);
-      for (uint64_t v : v_) h = (h ^ round(0, v)) * prime1 + prime4;
-    } else {
-      h = prime5;
-    }
-    h += total_;
-    const std::byte* p = buffer_;
-    const std::byte* end = buffer_ + held_;
-    for (; p + 8 <= end; p += 8) {
-      h ^= round(0, get<uint64_t>(p));
-      h = std::rotl(h, 27) * prime1 + prime4;
-    }
-    if (p + 4 <= end) {
-      h ^= uint64_t(get<uint32_t>(p)) * prime1;
-      h = std::rotl(h, 23) * prime2 + prime3;
-      p += 4;
-    }
-    for (; p < end; ++p) {
-      h ^= uint64_t(*p) * prime5;
-      h = std::rotl(h, 11) * prime1;
-    }
-    h ^= h >> 33;
-    h *= prime2;
-    h ^= h >> 29;
-    h *= prime3;
-    h ^= h >> 32;
-    return h;
-  }
-
- private:
-  static constexpr uint64_t prime1 = 0x9E3779B185EBCA87ull, prime2 = 0xC2B2AE3D27D4EB4Full,
-                            prime3 = 0x165667B19E3779F9ull, prime4 = 0x85EBCA77C2B2AE63ull,
-                            prime5 = 0x27D4EB2F165667C5ull;
-  static uint64_t round(uint64_t acc, uint64_t input) { return std::rotl(acc + input * prime2, 31) * prime1; }
-  void stripe(const std::byte* p) {
-    for (int i = 0; i < 4; ++i) v_[i] = round(v_[i], get<uint64_t>(p + 8 * i));
-  }
-  uint64_t v_[4] = {prime1 + prime2, prime2, 0, 0 - prime1};
-  std::byte buffer_[32];
-  size_t held_ = 0;
-  uint64_t total_ = 0;
-};
-}  // namespace
-
 uint64_t xxh64_of_pieces(const std::vector<Piece>& pieces) {
-  StreamingXxh64 hash;
-  for (const Piece& piece : pieces) hash.add(static_cast<const std::byte*>(piece.data), piece.bytes);
+  io::Xxh64Stream hash;
+  for (const Piece& piece : pieces) hash.add(piece.data, piece.bytes);
   return hash.finish();
 }
 

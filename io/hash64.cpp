@@ -1,5 +1,6 @@
 #include "io/hash64.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <cstring>
 
@@ -16,7 +17,7 @@ constexpr uint64_t prime5 = 0x27D4EB2F165667C5ull;
 inline uint64_t read64(const unsigned char* p) {
   uint64_t v;
   std::memcpy(&v, p, 8);
-  return v;  // little-endian host (checked where chunks are encoded)
+  return v;  // little-endian host (asserted below)
 }
 inline uint32_t read32(const unsigned char* p) {
   uint32_t v;
@@ -25,9 +26,7 @@ inline uint32_t read32(const unsigned char* p) {
 }
 
 inline uint64_t round(uint64_t accumulator, uint64_t input) {
-  accumulator += input * prime2;
-  accumulator = std::rotl(accumulator, 31);
-  return accumulator * prime1;
+  return std::rotl(accumulator + input * prime2, 31) * prime1;
 }
 
 inline uint64_t merge_round(uint64_t accumulator, uint64_t value) {
@@ -37,30 +36,52 @@ inline uint64_t merge_round(uint64_t accumulator, uint64_t value) {
 
 }  // namespace
 
-uint64_t xxh64(const void* data, size_t size, uint64_t seed) {
+Xxh64Stream::Xxh64Stream(uint64_t seed)
+    : v_{seed + prime1 + prime2, seed + prime2, seed, seed - prime1}, seed_(seed) {}
+
+void Xxh64Stream::stripe(const unsigned char* p) {
+  for (int i = 0; i < 4; ++i) v_[i] = round(v_[i], read64(p + 8 * i));
+}
+
+void Xxh64Stream::add(const void* data, size_t n) {
   static_assert(std::endian::native == std::endian::little);
   const auto* p = static_cast<const unsigned char*>(data);
-  const unsigned char* end = p + size;
-  uint64_t h;
-  if (size >= 32) {
-    uint64_t v1 = seed + prime1 + prime2, v2 = seed + prime2, v3 = seed, v4 = seed - prime1;
-    const unsigned char* limit = end - 32;
-    do {
-      v1 = round(v1, read64(p));
-      v2 = round(v2, read64(p + 8));
-      v3 = round(v3, read64(p + 16));
-      v4 = round(v4, read64(p + 24));
-      p += 32;
-    } while (p <= limit);
-    h = std::rotl(v1, 1) + std::rotl(v2, 7) + std::rotl(v3, 12) + std::rotl(v4, 18);
-    h = merge_round(h, v1);
-    h = merge_round(h, v2);
-    h = merge_round(h, v3);
-    h = merge_round(h, v4);
-  } else {
-    h = seed + prime5;
+  total_ += n;
+  if (held_ > 0) {
+    const size_t take = std::min(n, size_t(32) - held_);
+    std::memcpy(buffer_ + held_, p, take);
+    held_ += take;
+    p += take;
+    n -= take;
+    if (held_ < 32) return;
+    stripe(buffer_);
+    held_ = 0;
   }
-  h += static_cast<uint64_t>(size);
+  // The lanes in locals: through v_ the compiler would store them after every stripe
+  // (the input may alias them); that was half again slower.
+  uint64_t v1 = v_[0], v2 = v_[1], v3 = v_[2], v4 = v_[3];
+  for (; n >= 32; p += 32, n -= 32) {
+    v1 = round(v1, read64(p));
+    v2 = round(v2, read64(p + 8));
+    v3 = round(v3, read64(p + 16));
+    v4 = round(v4, read64(p + 24));
+  }
+  v_[0] = v1, v_[1] = v2, v_[2] = v3, v_[3] = v4;
+  std::memcpy(buffer_, p, n);
+  held_ = n;
+}
+
+uint64_t Xxh64Stream::finish() const {
+  uint64_t h;
+  if (total_ >= 32) {
+    h = std::rotl(v_[0], 1) + std::rotl(v_[1], 7) + std::rotl(v_[2], 12) + std::rotl(v_[3], 18);
+    for (uint64_t v : v_) h = merge_round(h, v);
+  } else {
+    h = seed_ + prime5;
+  }
+  h += total_;
+  const unsigned char* p = buffer_;
+  const unsigned char* end = buffer_ + held_;
   for (; p + 8 <= end; p += 8) {
     h ^= round(0, read64(p));
     h = std::rotl(h, 27) * prime1 + prime4;
@@ -80,6 +101,12 @@ uint64_t xxh64(const void* data, size_t size, uint64_t seed) {
   h *= prime3;
   h ^= h >> 32;
   return h;
+}
+
+uint64_t xxh64(const void* data, size_t size, uint64_t seed) {
+  Xxh64Stream stream(seed);
+  stream.add(data, size);
+  return stream.finish();
 }
 
 }  // namespace qemflow::io
