@@ -1,12 +1,17 @@
 #include "nodes/pipeline/epochs.hpp"
 
 #include <algorithm>
+#include <atomic>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <deque>
 #include <limits>
 #include <memory>
 #include <mutex>
+
+#include <oneapi/tbb/parallel_for.h>
+#include <oneapi/tbb/parallel_sort.h>
 
 #include "engine/process_memory.hpp"
 #include "util/error.hpp"
@@ -110,12 +115,6 @@ BlobView view_blob(const std::byte* data, size_t size) {
   return v;
 }
 
-const VertexRecord* find_vertex(const VertexRecord* begin, const VertexRecord* end, uint64_t gid) {
-  const VertexRecord* it =
-      std::lower_bound(begin, end, gid, [](const VertexRecord& r, uint64_t g) { return r.gid < g; });
-  return it != end && it->gid == gid ? it : nullptr;
-}
-
 double distance(const Point& a, const Point& b) {
   return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
 }
@@ -136,12 +135,15 @@ ChunkMeta meta_of(uint32_t owner, const std::vector<FaceRecord>& faces, const st
   m.owner = owner;
   m.faces = faces.size();
   for (const auto& v : vertices) m.box.add(v.position);
-  const VertexRecord* b = vertices.data();
-  const VertexRecord* e = b + vertices.size();
+  std::vector<uint64_t> gids(vertices.size());
+  for (size_t i = 0; i < vertices.size(); ++i) gids[i] = vertices[i].gid;
+  auto position = [&](uint64_t gid) -> const Point& {
+    return vertices[size_t(std::lower_bound(gids.begin(), gids.end(), gid) - gids.begin())].position;
+  };
   for (const auto& f : faces) {
-    const Point& p0 = find_vertex(b, e, f.v[0])->position;
-    const Point& p1 = find_vertex(b, e, f.v[1])->position;
-    const Point& p2 = find_vertex(b, e, f.v[2])->position;
+    const Point& p0 = position(f.v[0]);
+    const Point& p1 = position(f.v[1]);
+    const Point& p2 = position(f.v[2]);
     m.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
   }
   return m;
@@ -157,9 +159,8 @@ struct MeshState {
 };
 
 // Encodes and queues a chunk for writing (the I/O thread fills in the offset).
-void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta, const Bytes& blob,
-                 Lease carried) {
-  auto encoded = std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size()));
+void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta,
+                         uint64_t blob_size, std::shared_ptr<Bytes> encoded, Lease carried) {
   size_t index;
   {
     std::lock_guard lock(state.mutex);
@@ -168,11 +169,11 @@ void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkM
     c.meta = meta;
     c.frame.file = state.file;
     c.frame.bytes = encoded->size();
-    c.frame.count = blob.size();
+    c.frame.count = blob_size;
     c.frame.tag = meta.owner;
     state.chunks.push_back(c);
     state.faces += meta.faces;
-    state.blob_bytes_total += blob.size();
+    state.blob_bytes_total += blob_size;
   }
   job.stage("epochs").bytes_written += encoded->size();
   auto held = std::make_shared<Lease>(std::move(carried));
@@ -191,6 +192,13 @@ void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkM
       job.error_handler(), encoded->size());
 }
 
+void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta, const Bytes& blob,
+                 Lease carried) {
+  write_encoded_chunk(job, scratch, state, meta, blob.size(),
+                      std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size())),
+                      std::move(carried));
+}
+
 void finish_state(Job& job, ScratchStore& scratch, MeshState& state) {
   job.io().drain();
   job.check();
@@ -202,21 +210,42 @@ void finish_state(Job& job, ScratchStore& scratch, MeshState& state) {
 template <class VertexOf>
 void write_faces_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, uint32_t owner,
                            const std::vector<FaceRecord>& faces, uint64_t chunk_faces, VertexOf vertex_of) {
-  std::vector<FaceRecord> part;
-  std::vector<VertexRecord> verts;
-  for (size_t first = 0; first < faces.size(); first += chunk_faces) {
-    const size_t n = std::min<size_t>(chunk_faces, faces.size() - first);
-    part.assign(faces.begin() + first, faces.begin() + first + n);
-    std::vector<uint64_t> gids;
-    gids.reserve(3 * n);
-    for (const auto& f : part)
-      for (uint64_t g : f.v) gids.push_back(g);
-    std::sort(gids.begin(), gids.end());
-    gids.erase(std::unique(gids.begin(), gids.end()), gids.end());
-    verts.clear();
-    for (uint64_t g : gids) verts.push_back(vertex_of(g));
-    const ChunkMeta meta = meta_of(owner, part, verts);
-    write_chunk(job, scratch, state, meta, make_blob(part, verts), Lease());
+  // Chunks are made and encoded in parallel, a batch at a time (bounded memory), and
+  // queued for writing in order.
+  struct Made {
+    ChunkMeta meta;
+    uint64_t blob_size = 0;
+    std::shared_ptr<Bytes> encoded;
+  };
+  const size_t chunks = (faces.size() + chunk_faces - 1) / chunk_faces;
+  // A batch per compute thread: what is in flight here (blob + encoded frame, ~2.6 MB
+  // per 8192-face chunk) is outside the patch lease, so it stays this small.
+  const size_t kBatch = size_t(std::max(1, job.threads()));
+  std::vector<Made> made;
+  for (size_t batch = 0; batch < chunks; batch += kBatch) {
+    const size_t n_batch = std::min(kBatch, chunks - batch);
+    made.assign(n_batch, {});
+    job.arena().execute([&] {
+      tbb::parallel_for(size_t(0), n_batch, [&](size_t i) {
+        const size_t first = (batch + i) * chunk_faces;
+        const size_t n = std::min<size_t>(chunk_faces, faces.size() - first);
+        std::vector<FaceRecord> part(faces.begin() + first, faces.begin() + first + n);
+        std::vector<uint64_t> gids;
+        gids.reserve(3 * n);
+        for (const auto& f : part)
+          for (uint64_t g : f.v) gids.push_back(g);
+        std::sort(gids.begin(), gids.end());
+        gids.erase(std::unique(gids.begin(), gids.end()), gids.end());
+        std::vector<VertexRecord> verts;
+        verts.reserve(gids.size());
+        for (uint64_t g : gids) verts.push_back(vertex_of(g));
+        made[i].meta = meta_of(owner, part, verts);
+        const Bytes blob = make_blob(part, verts);
+        made[i].blob_size = blob.size();
+        made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob.data(), blob.size()));
+      });
+    });
+    for (auto& m : made) write_encoded_chunk(job, scratch, state, m.meta, m.blob_size, std::move(m.encoded), Lease());
   }
 }
 
@@ -334,23 +363,33 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state
       [&](const FrameHeader& header, Bytes& records, Lease&) {
         if (everything || header.tag == p) return;
         const BlobView v = view_blob(records.data(), records.size());
+        // Per vertex: inside the box? (A chunk wholly inside is kept as it is.) Corners
+        // are found in a compact gid array, and the kept faces' vertices are marked.
+        std::vector<uint64_t> gids(v.vertices);
+        std::vector<uint8_t> inside(v.vertices), used(v.vertices, 0);
+        bool all_inside = true;
+        for (uint64_t i = 0; i < v.vertices; ++i) {
+          gids[i] = v.vertex[i].gid;
+          inside[i] = box.contains(v.vertex[i].position);
+          all_inside = all_inside && inside[i];
+        }
+        if (all_inside) return;
+        auto index_of = [&](uint64_t gid) {
+          const auto it = std::lower_bound(gids.begin(), gids.end(), gid);
+          if (it == gids.end() || *it != gid) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+          return size_t(it - gids.begin());
+        };
         std::vector<FaceRecord> kept;
         for (uint64_t i = 0; i < v.faces; ++i) {
           const FaceRecord& f = v.face[i];
-          bool inside = false;
-          for (uint64_t gid : f.v) {
-            const VertexRecord* r = find_vertex(v.vertex, v.vertex + v.vertices, gid);
-            if (r && box.contains(r->position)) inside = true;
-          }
-          if (inside) kept.push_back(f);
+          const size_t a = index_of(f.v[0]), b = index_of(f.v[1]), c = index_of(f.v[2]);
+          if (!(inside[a] || inside[b] || inside[c])) continue;
+          kept.push_back(f);
+          used[a] = used[b] = used[c] = 1;
         }
         std::vector<VertexRecord> verts;
-        std::vector<uint64_t> gids;
-        for (const auto& f : kept)
-          for (uint64_t gid : f.v) gids.push_back(gid);
-        std::sort(gids.begin(), gids.end());
-        gids.erase(std::unique(gids.begin(), gids.end()), gids.end());
-        for (uint64_t gid : gids) verts.push_back(*find_vertex(v.vertex, v.vertex + v.vertices, gid));
+        for (uint64_t i = 0; i < v.vertices; ++i)
+          if (used[i]) verts.push_back(v.vertex[i]);
         Bytes blob = make_blob(kept, verts);
         records.swap(blob);
       },
@@ -360,9 +399,12 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state
         g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
       },
       0);
-  std::sort(g.faces.begin(), g.faces.end(), [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
-  std::sort(g.vertices.begin(), g.vertices.end(),
-            [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
+  // Keys are unique (face ids; a gid's records are equal copies), so a parallel sort
+  // gives the same arrays.
+  tbb::parallel_sort(g.faces.begin(), g.faces.end(),
+                     [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
+  tbb::parallel_sort(g.vertices.begin(), g.vertices.end(),
+                     [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
   g.vertices.erase(std::unique(g.vertices.begin(), g.vertices.end(),
                                [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
                    g.vertices.end());
@@ -379,16 +421,39 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
   BuiltPatch out;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const VertexRecord* vb = g.vertices.data();
-  const VertexRecord* ve = vb + nv;
+  // Corner → local vertex through an open-addressing table gid → index (one probe
+  // sequence per corner instead of a binary search over the 120-byte records), in parallel.
+  size_t slots = 16;
+  while (slots < 2 * nv) slots *= 2;
+  const int shift = 64 - std::countr_zero(slots);
+  constexpr uint32_t kEmpty = std::numeric_limits<uint32_t>::max();
+  std::vector<std::pair<uint64_t, uint32_t>> table(slots, {0, kEmpty});
+  auto slot_of = [shift](uint64_t gid) { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift); };
+  for (size_t v = 0; v < nv; ++v) {
+    size_t at = slot_of(vb[v].gid);
+    while (table[at].second != kEmpty) at = (at + 1) & (slots - 1);
+    table[at] = {vb[v].gid, uint32_t(v)};
+  }
   std::vector<std::array<uint32_t, 3>> local(nf);
+  std::atomic<bool> missing = false;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t f = range.begin(); f < range.end(); ++f)
+      for (int k = 0; k < 3; ++k) {
+        const uint64_t gid = g.faces[f].v[k];
+        size_t at = slot_of(gid);
+        while (table[at].second != kEmpty && table[at].first != gid) at = (at + 1) & (slots - 1);
+        if (table[at].second == kEmpty) {
+          missing = true;
+          continue;
+        }
+        local[f][k] = table[at].second;
+      }
+  });
+  if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+  table = {};
   std::vector<uint32_t> count(nv + 1, 0);
   for (size_t f = 0; f < nf; ++f)
-    for (int k = 0; k < 3; ++k) {
-      const VertexRecord* r = find_vertex(vb, ve, g.faces[f].v[k]);
-      if (!r) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
-      local[f][k] = uint32_t(r - vb);
-      ++count[local[f][k] + 1];
-    }
+    for (uint32_t v : local[f]) ++count[v + 1];
   for (size_t v = 0; v < nv; ++v) count[v + 1] += count[v];
   std::vector<uint32_t> fan(count[nv]);
   {
@@ -520,7 +585,9 @@ struct Runner {
   }
 
   Lease patch_lease(uint64_t faces) {
-    const uint64_t want = std::min<uint64_t>(faces * kPatchBytesPerFace, job.governor().capacity());
+    // A quarter of the capacity stays free for the gather's frame streams (they take
+    // their own leases while this one is held: no hold-and-wait on the whole budget).
+    const uint64_t want = std::min<uint64_t>(faces * kPatchBytesPerFace, job.governor().capacity() / 4 * 3);
     return job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
   }
 
@@ -630,7 +697,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const EpochOptions epoch = epoch_options(options.simplify);
   const uint64_t capacity = job.governor().capacity();
   const uint64_t in_core_faces =
-      options.in_core_faces ? options.in_core_faces : uint64_t(0.8 * double(capacity)) / kInCoreBytesPerFace;
+      options.in_core_faces ? options.in_core_faces : uint64_t(0.9 * double(capacity)) / kInCoreBytesPerFace;
 
   const Partition partition = partition_blocks(job, scratch, mesh, options.partition);
   st.patches = partition.clusters;

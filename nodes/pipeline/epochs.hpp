@@ -78,10 +78,14 @@ struct OocResult {
 OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const engine::LoadedMesh& mesh,
                           const OocOptions& options);
 
-// Measured bytes per face (owned + halo) of a patch while it is gathered and decimated,
-// and of the in-core finish; the budget rules use them.
-inline constexpr uint64_t kPatchBytesPerFace = 520;
-inline constexpr uint64_t kInCoreBytesPerFace = 520;
+// Bytes per face (owned + halo) of a patch while it is gathered and decimated, and of the
+// in-core finish; the budget rules use them. The finish peaks while the gathered state
+// (face record 40 B + vertex records ~60 B per face) and the built PatchInput (~80 B) are
+// both alive, and then in the decimator (~130 B/face measured in core, nodes/decimate
+// README) while its input is freed (measured peaks: 256 B/face at 0.8M faces, more on small
+// meshes where fixed buffers weigh: 320 for the finish).
+inline constexpr uint64_t kPatchBytesPerFace = 260;
+inline constexpr uint64_t kInCoreBytesPerFace = 320;
 
 // The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured
 // baseline), job, scratch, load, simplify_blocks, write (same bytes as --in-core),

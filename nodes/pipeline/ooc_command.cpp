@@ -36,6 +36,9 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     // State chunks carry quadrics: several times the block size at the first epochs.
     engine::ScratchStore scratch(command.scratch_dir,
                                  2 * engine::expected_scratch_bytes(input_bytes, command.input.extension() == ".zst"));
+    // Frames (blocks, state chunks) in the store's codec: raw when the scratch disk has
+    // room (zstd of quadrics and ids costs more CPU than the bytes it saves).
+    engine::DefaultFrameCodec codec_scope(scratch.codec());
     struct DrainIo {
       engine::Job& job;
       ~DrainIo() { job.io().drain(); }

@@ -66,7 +66,8 @@ Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, cons
   const auto start = std::chrono::steady_clock::now();
   engine::StageTimer timer(job, "partition");
   Partition result;
-  result.clusters = clusters_for(mesh, job.governor().budget(), options);
+  // The capacity (budget less the measured baseline) is what patches may hold.
+  result.clusters = clusters_for(mesh, job.governor().capacity(), options);
   if (result.clusters <= 1 || mesh.kept_faces() == 0) {
     result.clusters = 1;
     return result;

@@ -69,8 +69,9 @@ TEST(SimplifyOoc, Generated200kMeshEqualsInCore) {
   TempDir dir;
   const auto mesh = dir / "blob.ply";
   run_ok(q() + " gen " + mesh.string() + " --faces 200000 --shape figure --quiet");
-  // Two passes over the patches (epoch 0 and one epoch of rounds), then in core.
-  expect_partition_invariant(mesh, "--ratio 0.01", {2, 4, 8, 16}, 150000);
+  // Two passes over the patches (epoch 0 and one epoch of rounds), then in core. One
+  // cluster count here: the 12k mesh above takes all four, the shared meshes 2/4/8/16.
+  expect_partition_invariant(mesh, "--ratio 0.01", {8}, 150000);
 }
 
 TEST(SimplifyOoc, SharedMeshesEqualInCore) {
@@ -121,11 +122,11 @@ TEST(SimplifyOoc, PeakRssStaysUnderTheBudget) {
   run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
   const auto report = dir / "r.json";
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-         " --ratio 0.01 --mem-budget 96M --quiet --report " + report.string() + " --scratch " + dir.path().string());
+         " --ratio 0.01 --mem-budget 80M --quiet --report " + report.string() + " --scratch " + dir.path().string());
   const auto r = read_json(report);
   EXPECT_GE(r["patches"].get<int>(), 4);
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 2);
-  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 96ull << 20);
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 3000u);
 }
 
