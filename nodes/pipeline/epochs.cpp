@@ -355,9 +355,18 @@ struct Gathered {
 Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state, uint32_t p, const Box& box,
                          bool everything) {
   std::vector<FrameRef> frames;
+  uint64_t most_faces = 0, most_blob_bytes = 0;
   for (const auto& c : state.chunks)
-    if (everything || c.meta.owner == p || c.meta.box.meets(box)) frames.push_back(c.frame);
+    if (everything || c.meta.owner == p || c.meta.box.meets(box)) {
+      frames.push_back(c.frame);
+      most_faces += c.meta.faces;
+      most_blob_bytes += c.frame.count;
+    }
+  // Reserved up front at upper bounds: growth by doubling would hold the old and the new
+  // arrays at once (a spike outside the patch lease); untouched reserved pages cost no RSS.
   Gathered g;
+  g.faces.reserve(most_faces);
+  g.vertices.reserve(most_blob_bytes / sizeof(VertexRecord) + 1);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
@@ -496,6 +505,22 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
   PatchInput& in = out.input;
   std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
   const bool given_quadrics = nv > 0 && vb[0].has_quadric;
+  // Exact sizes (no growth spikes).
+  const size_t kept_v = size_t(std::count(vsel.begin(), vsel.end(), uint8_t(1)));
+  const size_t kept_f = size_t(std::count(fsel.begin(), fsel.end(), uint8_t(1)));
+  in.vertex_gids.reserve(kept_v);
+  in.positions.reserve(kept_v);
+  if (given_quadrics) {
+    in.quadrics.reserve(kept_v);
+    in.locked.reserve(kept_v);
+  }
+  if (!whole) {
+    in.incomplete.reserve(kept_v);
+    in.owned_vertex.reserve(kept_v);
+    in.owned_face.reserve(kept_f);
+  }
+  in.faces.reserve(kept_f);
+  in.face_gids.reserve(kept_f);
   for (size_t v = 0; v < nv; ++v) {
     if (!vsel[v]) continue;
     new_index[v] = uint32_t(in.vertex_gids.size());

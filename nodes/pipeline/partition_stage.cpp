@@ -58,7 +58,14 @@ std::vector<engine::FrameRef> all_block_frames(const engine::LoadedMesh& mesh) {
 
 uint32_t clusters_for(const engine::LoadedMesh& mesh, uint64_t budget_bytes, const PartitionOptions& options) {
   if (options.clusters) return options.clusters;
-  return patch_count_for_budget(mesh.kept_faces(), budget_bytes);
+  // The epoch pipeline runs one patch at a time, but a patch peaks at ~430 B per patch
+  // face while gathered and built (state records + PatchInput + decimator; measured on
+  // 5M faces at 256M), with ~1.6 patch faces per owned face at 26-32 halo rings.
+  PatchBudget patch;
+  patch.decimator_bytes_per_face = 280;
+  patch.halo_factor = 1.6;
+  patch.concurrent_patches = 1;
+  return patch_count_for_budget(mesh.kept_faces(), budget_bytes, patch);
 }
 
 Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, const engine::LoadedMesh& mesh,
