@@ -167,7 +167,7 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
     // A serial function_node may start a newly arrived message before a queued one,
     // so an ordered pass runs transform and sink in the one node behind the sequencer.
     flow::function_node<Msg, Msg> transform(
-        graph, pass.ordered ? flow::serial : pass.transform_concurrency, [&](const Msg& msg) {
+        graph, pass.ordered ? size_t{flow::serial} : size_t{pass.transform_concurrency}, [&](const Msg& msg) {
           guarded(pass.transform_name, pass.transform, *msg);
           if (pass.ordered) consume(msg);
           return msg;

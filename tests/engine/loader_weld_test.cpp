@@ -175,7 +175,9 @@ void check_shared_mesh(const std::string& name, uint64_t window, uint64_t expect
   TempDir dir;
   io::IndexedMesh mesh = io::read_mesh(path);
   const Expected e = brute_force(mesh);
-  if (expected_welded != UINT64_MAX) EXPECT_EQ(e.welded, expected_welded);
+  if (expected_welded != UINT64_MAX) {
+    EXPECT_EQ(e.welded, expected_welded);
+  }
   for (bool out_of_core : {false, true}) {
     SCOPED_TRACE(out_of_core ? "out of core" : "resident");
     expect_matches(mesh, e, load(path, dir, out_of_core, window));
