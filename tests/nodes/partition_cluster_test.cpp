@@ -7,7 +7,7 @@
 #include <numeric>
 
 #include "nodes/partition/fuzzy_clusterer.hpp"
-#include "nodes/partition/test_surfaces.hpp"
+#include "nodes/partition_test_surfaces.hpp"
 
 namespace qemflow::nodes::partition {
 namespace {

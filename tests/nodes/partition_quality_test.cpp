@@ -10,7 +10,7 @@
 
 #include "nodes/partition/fuzzy_clusterer.hpp"
 #include "nodes/partition/plane_classifier.hpp"
-#include "nodes/partition/test_surfaces.hpp"
+#include "nodes/partition_test_surfaces.hpp"
 
 namespace qemflow::nodes::partition {
 namespace {

@@ -11,7 +11,7 @@
 #include "nodes/partition/partition_budget.hpp"
 #include "nodes/partition/proximity_graph.hpp"
 #include "nodes/partition/surface_sampler.hpp"
-#include "nodes/partition/test_surfaces.hpp"
+#include "nodes/partition_test_surfaces.hpp"
 
 namespace qemflow::nodes::partition {
 namespace {

@@ -8,7 +8,7 @@
 #include "engine/blocks.hpp"
 #include "engine/scratch.hpp"
 #include "io/indexed_mesh.hpp"
-#include "nodes/partition/test_surfaces.hpp"
+#include "nodes/partition_test_surfaces.hpp"
 #include "nodes/pipeline/partition_stage.hpp"
 #include "nodes/pipeline/patch_count.hpp"
 #include "test_support.hpp"

@@ -1,5 +1,5 @@
 #pragma once
-// Small analytic closed surfaces for the partition tests and benchmarks, independent
+// Small analytic closed surfaces for the partition tests, independent
 // of the generator in gen/: a bumpy icosphere, a torus and a flattened (two-sheet)
 // ellipsoid. All outward oriented, built from their parameters alone.
 #include <array>
