@@ -103,10 +103,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
   if (!options.job_name.empty()) settings.owner_prefix = options.job_name + "/";
   Job job(governor, hooks, settings);
   ReencodeResult result;
-  auto write_trace = [&] {
-    if (!options.trace_path.empty()) job.trace().write(options.trace_path);
-  };
-  try {
+  run_then_write_trace(job, options.trace_path, [&] {
     std::error_code ec;
     uint64_t input_bytes = std::filesystem::file_size(options.input, ec);
     if (ec) throw Error(ErrorKind::bad_input, options.input.string() + ": cannot read: " + ec.message());
@@ -174,21 +171,12 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["local_faces"] = mesh.local_faces;
     result.report["block_record_bytes"] = mesh.block_record_size;
     result.report["spanning_faces"] = mesh.corner_faces;
-    result.report["scratch_bytes_written"] = scratch.bytes_written();
-    result.report["scratch_bytes_read"] = scratch.bytes_read();
-    result.report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
+    report_scratch(result.report, scratch);
     result.report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
     result.report["input_bytes"] = input_bytes;
     result.report["output_bytes"] = writer->bytes_written();
     result.summary = format_summary(result.report);
-  } catch (...) {
-    try {
-      write_trace();
-    } catch (...) {
-    }
-    throw;
-  }
-  write_trace();
+  });
   if (!options.report_path.empty()) write_json(options.report_path, result.report);
   return result;
 }

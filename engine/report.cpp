@@ -68,6 +68,12 @@ std::string format_summary(const nlohmann::json& r) {
   return line;
 }
 
+void report_scratch(nlohmann::json& report, const ScratchStore& scratch) {
+  report["scratch_bytes_written"] = scratch.bytes_written();
+  report["scratch_bytes_read"] = scratch.bytes_read();
+  report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
+}
+
 void write_json(const std::filesystem::path& path, const nlohmann::json& json) {
   std::ofstream out(path);
   out << json.dump(2) << "\n";

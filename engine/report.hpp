@@ -10,6 +10,7 @@
 
 #include "engine/governor.hpp"
 #include "engine/job.hpp"
+#include "engine/scratch.hpp"
 
 namespace qemflow::engine {
 
@@ -19,5 +20,26 @@ nlohmann::json job_report(Job& job, const Governor& governor);
 std::string format_summary(const nlohmann::json& report);
 // Plain file write (the report is not pipeline data); Error(resource) on failure.
 void write_json(const std::filesystem::path& path, const nlohmann::json& json);
+
+// The scratch store's totals: scratch_bytes_written, scratch_bytes_read, scratch_peak_bytes.
+void report_scratch(nlohmann::json& report, const ScratchStore& scratch);
+
+// Runs `body`, then writes the job's trace to `path` (if any) whether body returned or
+// threw: a failed run's trace is the one most worth reading. A trace write error after
+// a failure never masks the failure's own error.
+template <class Body>
+void run_then_write_trace(Job& job, const std::filesystem::path& path, Body&& body) {
+  if (path.empty()) return body();
+  try {
+    body();
+  } catch (...) {
+    try {
+      job.trace().write(path);
+    } catch (...) {
+    }
+    throw;
+  }
+  job.trace().write(path);
+}
 
 }  // namespace qemflow::engine

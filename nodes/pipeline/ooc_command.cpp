@@ -26,10 +26,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
   settings.trace_events = command.trace_path.empty() ? 0 : (1 << 18);
   engine::Job job(governor, {.progress = bar.callback(), .cancel = {}}, settings);
   nlohmann::json report;
-  auto write_trace = [&] {
-    if (!command.trace_path.empty()) job.trace().write(command.trace_path);
-  };
-  try {
+  engine::run_then_write_trace(job, command.trace_path, [&] {
     std::error_code ec;
     const uint64_t input_bytes = std::filesystem::file_size(command.input, ec);
     if (ec) throw Error(ErrorKind::bad_input, command.input.string() + ": cannot read: " + ec.message());
@@ -86,19 +83,10 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;
     report["largest_patch_faces"] = st.patch_faces_max;
-    report["scratch_bytes_written"] = scratch.bytes_written();
-    report["scratch_bytes_read"] = scratch.bytes_read();
-    report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
+    engine::report_scratch(report, scratch);
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
-  } catch (...) {
-    try {
-      write_trace();
-    } catch (...) {
-    }
-    throw;
-  }
-  write_trace();
+  });
   bar.finish();
   if (!command.report_path.empty()) engine::write_json(command.report_path, report);
   if (!command.quiet) {
