@@ -11,6 +11,7 @@
 #include <random>
 #include <vector>
 
+#include "test_meshes.hpp"
 #include "util/geometry.hpp"
 
 namespace qemflow::testing {
@@ -47,40 +48,14 @@ inline Mesh grid(int n, double noise = 0.0, uint32_t seed = 1) {
 
 // Subdivided icosahedron on the unit sphere, radius optionally perturbed.
 inline Mesh icosphere(int subdivisions, double noise = 0.0, uint32_t seed = 1) {
-  const double t = (1.0 + std::sqrt(5.0)) / 2.0;
-  Mesh m;
-  m.points = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-              {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
-  m.triangles = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
-                 {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
-                 {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
-  for (int s = 0; s < subdivisions; ++s) {
-    std::map<std::pair<uint64_t, uint64_t>, uint64_t> mid;
-    auto midpoint = [&](uint64_t a, uint64_t b) {
-      auto key = std::minmax(a, b);
-      auto it = mid.find(key);
-      if (it != mid.end()) return it->second;
-      const auto &p = m.points[a], &q = m.points[b];
-      m.points.push_back({(p[0] + q[0]) / 2, (p[1] + q[1]) / 2, (p[2] + q[2]) / 2});
-      return mid[key] = m.points.size() - 1;
-    };
-    std::vector<Triangle> next;
-    for (const auto& f : m.triangles) {
-      const uint64_t a = midpoint(f[0], f[1]), b = midpoint(f[1], f[2]), c = midpoint(f[2], f[0]);
-      next.push_back({f[0], a, c});
-      next.push_back({f[1], b, a});
-      next.push_back({f[2], c, b});
-      next.push_back({a, b, c});
-    }
-    m.triangles = std::move(next);
-  }
+  auto [points, triangles] = subdivided_icosahedron(subdivisions, /*on_sphere=*/false);
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(-noise, noise);
-  for (auto& p : m.points) {
+  for (auto& p : points) {
     const double r = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) / (1.0 + u(rng));
     for (auto& x : p) x /= r;
   }
-  return m;
+  return {std::move(points), std::move(triangles)};
 }
 
 struct Topology {

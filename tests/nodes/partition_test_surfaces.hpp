@@ -5,11 +5,11 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
-#include <map>
 #include <utility>
 #include <vector>
 
 #include "nodes/partition/surface_sampler.hpp"
+#include "test_meshes.hpp"
 
 namespace qemflow::nodes::partition::shapes {
 
@@ -21,46 +21,12 @@ struct Surface {
 // Icosahedron subdivided `levels` times (20·4^levels faces), projected on the unit
 // sphere, then radius 1 + bump·sin(3x)sin(4y)sin(5z), then scaled per axis.
 inline Surface icosphere(int levels, double bump = 0.0, Point axes = {1, 1, 1}) {
-  const double t = (1.0 + std::sqrt(5.0)) / 2.0;
-  Surface s;
-  s.vertices = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
-  s.triangles = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
-                 {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
-                 {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
-  auto unit = [](Point p) {
-    const double l = std::sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
-    return Point{p[0] / l, p[1] / l, p[2] / l};
-  };
-  for (auto& v : s.vertices) v = unit(v);
-  for (int level = 0; level < levels; ++level) {
-    std::map<std::pair<uint64_t, uint64_t>, uint64_t> midpoint;
-    auto middle = [&](uint64_t a, uint64_t b) {
-      auto key = std::minmax(a, b);
-      auto [it, inserted] = midpoint.try_emplace({key.first, key.second}, s.vertices.size());
-      if (inserted) {
-        const Point& p = s.vertices[a];
-        const Point& q = s.vertices[b];
-        s.vertices.push_back(unit({p[0] + q[0], p[1] + q[1], p[2] + q[2]}));
-      }
-      return it->second;
-    };
-    std::vector<Triangle> finer;
-    finer.reserve(s.triangles.size() * 4);
-    for (const auto& f : s.triangles) {
-      const uint64_t ab = middle(f[0], f[1]), bc = middle(f[1], f[2]), ca = middle(f[2], f[0]);
-      finer.push_back({f[0], ab, ca});
-      finer.push_back({f[1], bc, ab});
-      finer.push_back({f[2], ca, bc});
-      finer.push_back({ab, bc, ca});
-    }
-    s.triangles = std::move(finer);
-  }
-  for (auto& v : s.vertices) {
+  auto [vertices, triangles] = testing::subdivided_icosahedron(levels, /*on_sphere=*/true);
+  for (auto& v : vertices) {
     const double r = 1.0 + bump * std::sin(3 * v[0]) * std::sin(4 * v[1]) * std::sin(5 * v[2]);
     v = {v[0] * r * axes[0], v[1] * r * axes[1], v[2] * r * axes[2]};
   }
-  return s;
+  return {std::move(vertices), std::move(triangles)};
 }
 
 // Torus around the z axis: `around` × `across` quads, two triangles each.
