@@ -251,6 +251,43 @@ class VertexFrameWriter {
   std::vector<uint64_t> offsets_;
 };
 
+// Triangle-only block records kept in memory: fixed pages of records per cell, so
+// nothing is ever reallocated and the memory held is what bytes_for() leased.
+class ResidentBlocks {
+ public:
+  static constexpr uint64_t page_bytes = 256 << 10;
+  static uint64_t bytes_for(uint64_t faces, uint32_t record_size, uint32_t cells) {
+    return faces * record_size + uint64_t(cells) * page_bytes;
+  }
+  ResidentBlocks(uint64_t faces, uint32_t record_size, uint32_t cells, Lease lease)
+      : record_size_(record_size), page_records_(page_bytes / record_size), faces_left_(faces),
+        pages_(cells), lease_(std::move(lease)) {}
+  bool fits(uint64_t faces) const { return faces <= faces_left_; }
+  void add(uint32_t cell, const std::byte* record) {
+    auto& pages = pages_[cell];
+    if (pages.empty() || pages.back().size() == page_records_ * record_size_) {
+      pages.emplace_back();
+      pages.back().reserve(page_records_ * record_size_);
+    }
+    Bytes& page = pages.back();
+    const size_t at = page.size();
+    page.resize(at + record_size_);
+    std::memcpy(page.data() + at, record, record_size_);
+    --faces_left_;
+  }
+  std::vector<std::vector<Bytes>> finish(Lease& lease) {
+    lease = std::move(lease_);
+    return std::move(pages_);
+  }
+
+ private:
+  uint32_t record_size_;
+  uint64_t page_records_;
+  uint64_t faces_left_;
+  std::vector<std::vector<Bytes>> pages_;
+  Lease lease_;
+};
+
 class Loader {
  public:
   Loader(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
@@ -344,7 +381,12 @@ class Loader {
   // A face as its block record at `out` (block_record_size bytes); returns its cell.
   // Any thread.
   uint32_t make_record(const BlockFace& face, std::byte* out) const {
-    if (mesh_.block_record_size == sizeof(PackedBlockFace)) {
+    if (mesh_.block_record_size == triangle32_record_size) {
+      const uint32_t ids[3] = {uint32_t(face.vertices[0]), uint32_t(face.vertices[1]), uint32_t(face.vertices[2])};
+      std::memcpy(out, ids, sizeof ids);
+    } else if (mesh_.block_record_size == triangle64_record_size) {
+      std::memcpy(out, face.vertices.data(), sizeof(Triangle));
+    } else if (mesh_.block_record_size == sizeof(PackedBlockFace)) {
       PackedBlockFace packed;
       packed.id = face.id;
       packed.vertices = face.vertices;
@@ -356,17 +398,33 @@ class Loader {
     }
     return mesh_.grid.cell_of(barycenter(face.positions));
   }
-  void add_records(BucketSpill& blocks, const Bytes& records, const std::vector<uint32_t>& cells) {
+  template <class Blocks>
+  void add_records(Blocks& blocks, const Bytes& records, const std::vector<uint32_t>& cells) {
     for (size_t i = 0; i < cells.size(); ++i) {
       blocks.add(cells[i], records.data() + i * mesh_.block_record_size);
       ++mesh_.block_faces[cells[i]];
     }
   }
 
-  // Once every coordinate has been seen: blocks store floats when that is exact.
+  // Once every coordinate has been seen (and the vertex count is known): blocks store
+  // triangles only when asked, else floats when that is exact.
   uint32_t choose_block_layout() {
-    mesh_.block_record_size = box_.float_exact ? sizeof(PackedBlockFace) : sizeof(BlockFace);
+    if (options_.triangles_only) {
+      mesh_.block_record_size =
+          mesh_.vertex_count <= UINT32_MAX ? triangle32_record_size : triangle64_record_size;
+    } else {
+      mesh_.block_record_size = box_.float_exact ? sizeof(PackedBlockFace) : sizeof(BlockFace);
+    }
     return mesh_.block_record_size;
+  }
+
+  // Out of core, a local face's spill record: the full LocalFace (id and ids) when the
+  // degree pass reads them back, else for triangle-only blocks just the three ids
+  // (u32 when the header's vertex count allows): 12 bytes instead of 32.
+  uint32_t local_record_size() const {
+    const auto& count = input_.reader->info().vertex_count;
+    if (options_.triangles_only && !options_.degrees && count && *count <= UINT32_MAX) return triangle32_record_size;
+    return sizeof(LocalFace);
   }
 
   void collect_blocks(BucketSpill& blocks) {
@@ -511,8 +569,20 @@ class Loader {
       reopen_input_past_vertices();
     }
     build_grid(polygon_count);
-    blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(), std::move(block_lease),
-                                           mesh_.grid.count(), "load");
+    const uint32_t record_size = choose_block_layout();
+    // Triangle-only records that fit what the loader holds stay in memory: no scratch.
+    std::optional<ResidentBlocks> in_memory;
+    if (options_.triangles_only && polygon_count > 0) {
+      uint64_t need = ResidentBlocks::bytes_for(polygon_count, record_size, mesh_.grid.count());
+      if (need <= reserve_.bytes() + block_lease.bytes()) {
+        give_back(std::move(block_lease));
+        in_memory.emplace(polygon_count, record_size, mesh_.grid.count(), take("resident blocks", need));
+      }
+    }
+    if (!in_memory) {
+      blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", record_size, std::move(block_lease),
+                                             mesh_.grid.count(), "load");
+    }
 
     // Pass B: faces resolved and made into block records on every compute thread;
     // the sink only files them.
@@ -540,13 +610,27 @@ class Loader {
       item.cells.resize(kept);
     };
     face_pass.sink = [&](InputItem& item, Lease&) {
-      add_records(*blocks, item.block_records, item.cells);
+      if (in_memory) {
+        if (!in_memory->fits(item.cells.size())) {
+          throw_bad_input(input_.path.string(), "triangle " + std::to_string(item.batch.first_triangle),
+                          "more faces than the header declares");
+        }
+        add_records(*in_memory, item.block_records, item.cells);
+      } else {
+        add_records(*blocks, item.block_records, item.cells);
+      }
       mesh_.dropped_faces += item.dropped;
       if (!item.batch.triangles.empty()) {
         mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
       }
     };
     run_stream_pass(job_, face_pass);
+    if (in_memory) {
+      mesh_.resident_blocks = in_memory->finish(mesh_.resident_blocks_lease);
+      mesh_.float_exact = box_.float_exact;
+      mesh_.resident_lease = std::move(vertex_lease);
+      return;
+    }
     if (!blocks) {  // no faces at all
       build_grid(0);
       blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", choose_block_layout(),
@@ -578,7 +662,8 @@ class Loader {
 
     // Pass 1: vertices to chunks in scratch; local faces bucketed by their first
     // chunk, the corners of the others by their vertex's chunk.
-    BucketSpill local(job_, scratch_, "local-faces", sizeof(LocalFace),
+    const uint32_t local_size = local_record_size();
+    BucketSpill local(job_, scratch_, "local-faces", local_size,
                       spill_lease("face bucketer", 0.2, sizeof(LocalFace)), expected_chunks, "load");
     BucketSpill corners(job_, scratch_, "corners", sizeof(CornerRef),
                         spill_lease("corner bucketer", 0.1, sizeof(CornerRef)), expected_chunks, "load");
@@ -635,8 +720,13 @@ class Loader {
         max_index = std::max(max_index, hi);
         if (info.vertex_count && hi >= *info.vertex_count) index_out_of_range(input_.path, face, hi, *info.vertex_count);
         if (hi / chunk <= lo / chunk + 1) {
-          LocalFace record{face, t};
-          local.add(uint32_t(lo / chunk), &record);
+          if (local_size == triangle32_record_size) {
+            const uint32_t ids[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
+            local.add(uint32_t(lo / chunk), ids);
+          } else {
+            LocalFace record{face, t};
+            local.add(uint32_t(lo / chunk), &record);
+          }
           ++mesh_.local_faces;
           continue;
         }
@@ -671,7 +761,7 @@ class Loader {
 
     if (weld_spill) weld_by_buckets(*weld_spill, vertex_count);
     if (options_.degrees) count_degrees_from_spills(local, *spanning, vertex_count);
-    resolve_local_faces(local, chunk, chunks);
+    resolve_local_faces(local, local_size, chunk, chunks);
     if (corners.records() > 0) resolve_corner_faces(corners, chunk, chunks);
   }
 
@@ -743,7 +833,7 @@ class Loader {
 
   // Pass 2: per chunk c, with chunks c and c+1 loaded, the local faces of bucket c
   // become whole faces and go to their blocks.
-  void resolve_local_faces(BucketSpill& local, uint64_t chunk, uint32_t chunks) {
+  void resolve_local_faces(BucketSpill& local, uint32_t local_size, uint64_t chunk, uint32_t chunks) {
     StageTimer timer(job_, "resolve");
     BucketSpill blocks(job_, scratch_, "blocks-local", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
@@ -764,18 +854,25 @@ class Loader {
       }
       const uint64_t first = uint64_t(c) * chunk;
       for_each_frame(
-          job_, scratch_, "resolve", "local face frames", local.frames(c), sizeof(LocalFace),
+          job_, scratch_, "resolve", "local face frames", local.frames(c), local_size,
           [&](const FrameHeader& header, Bytes& records, Lease&) {
             // Records become block records followed by their cells, in one buffer.
-            const auto* faces = reinterpret_cast<const LocalFace*>(records.data());
             const uint32_t size = mesh_.block_record_size;
             Bytes out(header.count * (size + sizeof(uint32_t)));
             auto* cells = reinterpret_cast<uint32_t*>(out.data() + header.count * size);
             BlockFace face;
             for (uint64_t i = 0; i < header.count; ++i) {
-              face.id = faces[i].id;
-              for (int k = 0; k < 3; ++k) face.positions[k] = pair[faces[i].vertices[k] - first];
-              cells[i] = prepare(face, faces[i].vertices) ? make_record(face, out.data() + i * size) : UINT32_MAX;
+              LocalFace local_face;
+              if (local_size == triangle32_record_size) {
+                uint32_t ids[3];
+                std::memcpy(ids, records.data() + i * local_size, sizeof ids);
+                local_face = {0, {ids[0], ids[1], ids[2]}};
+              } else {
+                std::memcpy(&local_face, records.data() + i * local_size, sizeof local_face);
+              }
+              face.id = local_face.id;
+              for (int k = 0; k < 3; ++k) face.positions[k] = pair[local_face.vertices[k] - first];
+              cells[i] = prepare(face, local_face.vertices) ? make_record(face, out.data() + i * size) : UINT32_MAX;
             }
             records.swap(out);
           },
@@ -919,6 +1016,24 @@ class Loader {
 };
 
 }  // namespace
+
+bool is_triangle_record(uint32_t record_size) {
+  return record_size == triangle32_record_size || record_size == triangle64_record_size;
+}
+
+void unpack_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, Triangle* out) {
+  if (record_size == triangle64_record_size) {
+    std::memmove(static_cast<void*>(out), records, count * sizeof(Triangle));
+    return;
+  }
+  if (record_size != triangle32_record_size) throw Error(ErrorKind::internal, "not a triangle block record");
+  // Backwards, so that `out` may start where `records` does (in-place widening).
+  for (uint64_t i = count; i-- > 0;) {
+    uint32_t ids[3];
+    std::memcpy(ids, records + i * triangle32_record_size, sizeof ids);
+    out[i] = {ids[0], ids[1], ids[2]};
+  }
+}
 
 void unpack_block_faces(const std::byte* records, uint64_t count, uint32_t record_size, BlockFace* out) {
   if (record_size == sizeof(BlockFace)) {

@@ -43,8 +43,51 @@ void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io:
   (void)stage;
 }
 
+// Hands `count` triangles (with the lease that covers them) to the I/O thread to write.
+void submit_triangles(Job& job, io::MeshWriter& writer, UninitializedVector<Triangle> triangles, Lease lease) {
+  const uint64_t n = triangles.size();
+  auto held = std::make_shared<std::pair<UninitializedVector<Triangle>, Lease>>(std::move(triangles), std::move(lease));
+  job.io().submit(
+      "write triangles",
+      [&writer, held] {
+        writer.write_triangles(held->first.data(), held->first.size());
+        held->first = {};
+        held->second.release();
+      },
+      job.error_handler(), n * sizeof(Triangle));
+}
+
+// Blocks held in memory (triangle records, the loader's resident_blocks): each page
+// widened to Triangles here while the I/O thread writes the one before; pages are
+// freed as they go.
+uint64_t write_resident_triangles(Job& job, LoadedMesh& mesh, io::MeshWriter& writer) {
+  uint64_t written = 0, pages = 0, done = 0;
+  for (const auto& cell : mesh.resident_blocks) pages += cell.size();
+  for (auto& cell : mesh.resident_blocks) {
+    for (Bytes& page : cell) {
+      const uint64_t n = page.size() / mesh.block_record_size;
+      Lease lease = job.governor().acquire(job.owner("triangle writes"), n * sizeof(Triangle), n * sizeof(Triangle),
+                                           [&job] { return job.stopped(); });
+      job.check();
+      UninitializedVector<Triangle> triangles(n);
+      unpack_block_triangles(page.data(), n, mesh.block_record_size, triangles.data());
+      mesh.resident_blocks_lease.shrink_to(mesh.resident_blocks_lease.bytes() - std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
+      page = Bytes();
+      submit_triangles(job, writer, std::move(triangles), std::move(lease));
+      written += n;
+      job.progress(0.9 + 0.1 * double(++done) / double(pages), "write");
+    }
+  }
+  job.io().drain();
+  job.check();
+  mesh.resident_blocks.clear();
+  mesh.resident_blocks_lease.release();
+  return written;
+}
+
 // Reads every block and writes its triangles through the I/O thread.
-uint64_t write_triangles(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io::MeshWriter& writer) {
+uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::MeshWriter& writer) {
+  if (mesh.blocks_resident()) return write_resident_triangles(job, mesh, writer);
   std::vector<FrameRef> frames;
   for (const auto& block : mesh.blocks) frames.insert(frames.end(), block.begin(), block.end());
   uint64_t written = 0;
@@ -52,6 +95,13 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, const LoadedMesh& mesh
   for_each_frame(
       job, scratch, "write", "block frames", frames, mesh.block_record_size,
       [&mesh](const FrameHeader& header, Bytes& records, Lease&) {
+        if (is_triangle_record(mesh.block_record_size)) {
+          Bytes out(header.count * sizeof(Triangle));
+          unpack_block_triangles(records.data(), header.count, mesh.block_record_size,
+                                 reinterpret_cast<Triangle*>(out.data()));
+          records.swap(out);
+          return;
+        }
         // Triangles packed in place at the front of the decoded records (both block
         // layouts hold the vertex ids at bytes 8..32).
         auto* out = reinterpret_cast<Triangle*>(records.data());
@@ -75,7 +125,7 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, const LoadedMesh& mesh
         written += n;
         job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
       },
-      0);
+      is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0);
   job.io().drain();
   job.check();
   return written;
@@ -89,11 +139,12 @@ uint64_t expected_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {
   return (zstd_input ? 5 : 2) * input_file_bytes;
 }
 
-// Raw frames: blocks are 80 bytes a face (float input), vertex chunks 24 bytes a vertex,
-// bucketed faces 32; a binary PLY holds ~19 bytes a face (13 a face, 12 a vertex, half
-// as many vertices as faces).
+// Raw frames: blocks are 12 bytes a face (triangle records), bucketed local faces 12,
+// vertex chunks 24 bytes a vertex (~36 a face; spanning faces cost more, ~170, but are
+// few in real meshes); a binary PLY holds ~19 bytes a face (13 a face, 12 a vertex,
+// half as many vertices as faces).
 uint64_t expected_raw_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {
-  return (zstd_input ? 20 : 8) * input_file_bytes;
+  return (zstd_input ? 10 : 4) * input_file_bytes;
 }
 
 ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, const JobHooks& hooks) {
@@ -143,6 +194,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
       }
     } writer_guard{job, writer};
     StageTimer timer(job, "write");
+    const bool blocks_in_memory = mesh.blocks_resident();
     write_vertices(job, scratch, mesh, *writer);
     mesh.vertices.resident = {};
     mesh.resident_lease.release();
@@ -168,6 +220,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["rounds"] = 0;
     result.report["blocks"] = mesh.grid.count();
     result.report["out_of_core_dereference"] = mesh.out_of_core;
+    result.report["blocks_in_memory"] = blocks_in_memory;
     result.report["local_faces"] = mesh.local_faces;
     result.report["block_record_bytes"] = mesh.block_record_size;
     result.report["spanning_faces"] = mesh.corner_faces;
