@@ -142,10 +142,25 @@ struct LoadedMesh {
   uint64_t local_faces = 0;   // out of core: faces resolved with two chunks loaded
   uint64_t corner_faces = 0;  // out of core: faces resolved corner by corner
   Lease resident_lease;  // covers vertices.resident while it is held
+  // Out of core with LoadHooks::vertices: every vertex went to the hook, in order.
+  bool vertices_delivered = false;
+};
+
+// Optional calls from an out-of-core load (the resident one makes none), on the
+// calling thread:
+// - counted(mesh): after the first pass, when the counts, float_exact and the grid are
+//   known, before the dereference (the re-encode opens its output here);
+// - vertices(first, points, count): every vertex chunk, in index order, as the
+//   dereference loads it; `points` stay untouched until every I/O task submitted
+//   before the next call (or the end of the dereference) has run, so the hook may hand
+//   them to the I/O thread without a copy. Then LoadedMesh::vertices_delivered is set.
+struct LoadHooks {
+  std::function<void(const LoadedMesh&)> counted;
+  std::function<void(uint64_t first, const Point* points, uint64_t count)> vertices;
 };
 
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
-                            const LoadOptions& options);
+                            const LoadOptions& options, const LoadHooks& hooks = {});
 
 // Streams the given frames of `record_size` records through the I/O thread (a stream
 // pass): `transform(header, records, lease)` runs on compute threads concurrently,

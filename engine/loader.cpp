@@ -291,8 +291,8 @@ class ResidentBlocks {
 class Loader {
  public:
   Loader(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
-         const LoadOptions& options)
-      : job_(job), scratch_(scratch), options_(options) {
+         const LoadOptions& options, const LoadHooks& hooks)
+      : job_(job), scratch_(scratch), options_(options), hooks_(hooks) {
     input_.path = input;
     input_.reader = job_.io().call("open input", [&] { return io::open_mesh_reader(input); });
     input_.size = input_.reader->info().file_size;
@@ -761,8 +761,8 @@ class Loader {
 
     if (weld_spill) weld_by_buckets(*weld_spill, vertex_count);
     if (options_.degrees) count_degrees_from_spills(local, *spanning, vertex_count);
-    resolve_local_faces(local, local_size, chunk, chunks);
-    if (corners.records() > 0) resolve_corner_faces(corners, chunk, chunks);
+    if (hooks_.counted) hooks_.counted(mesh_);
+    resolve_faces(local, corners, local_size, chunk, chunks);
   }
 
   // Out-of-core weld: each position-hash bucket loaded, sorted by (position, index),
@@ -831,120 +831,133 @@ class Loader {
     remove_files(spanning);
   }
 
-  // Pass 2: per chunk c, with chunks c and c+1 loaded, the local faces of bucket c
-  // become whole faces and go to their blocks.
-  void resolve_local_faces(BucketSpill& local, uint32_t local_size, uint64_t chunk, uint32_t chunks) {
-    StageTimer timer(job_, "resolve");
+  // Pass 2: one walk over the vertex chunks in index order, each read from scratch
+  // once. With chunk c (and c+1) loaded: the local faces of bucket c become whole faces
+  // and go to their blocks, the corners that fall in chunk c are resolved, and the
+  // chunk is handed to hooks_.vertices (the re-encode writes it to the output). Then,
+  // for faces that span chunks (passes 3 and 4), the resolved corners are regrouped
+  // by face-id range and the faces rebuilt range by range.
+  void resolve_faces(BucketSpill& local, BucketSpill& corners, uint32_t local_size, uint64_t chunk, uint32_t chunks) {
+    std::optional<StageTimer> timer(std::in_place, job_, "resolve");
+    const uint64_t face_count = mesh_.face_count;
+    const uint64_t range = options_.range_faces
+                               ? options_.range_faces
+                               : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.3) / (3 * 32));
+    const uint64_t range_count = std::max<uint64_t>((face_count + range - 1) / range, 1);
+    const bool spanning = corners.records() > 0;
+    Lease pair_lease = take("vertex window", 2 * chunk * sizeof(Point));
+    std::optional<BucketSpill> resolved;
+    if (spanning) {
+      resolved.emplace(job_, scratch_, "resolved", sizeof(ResolvedCorner),
+                       spill_lease("corner resolver", 0.1, sizeof(ResolvedCorner)), uint32_t(range_count), "resolve");
+    }
     BucketSpill blocks(job_, scratch_, "blocks-local", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
-    Lease pair_lease = take("vertex window", 2 * chunk * sizeof(Point));
     UninitializedVector<Point> pair(2 * chunk);  // chunks c and c+1
     uint32_t upper_loaded = UINT32_MAX;  // which chunk sits in the upper half
-    for (uint32_t c = 0; c < chunks && c < local.bucket_count(); ++c) {
-      if (local.frames(c).empty()) continue;
+    bool handed_out = false;  // the lower half may still be read by an I/O task
+    auto wait_for_hand_out = [&] {
+      if (!handed_out) return;
+      job_.io().drain();
+      job_.check();
+      handed_out = false;
+    };
+    for (uint32_t c = 0; c < chunks; ++c) {
+      const bool has_local = c < local.bucket_count() && !local.frames(c).empty();
+      const bool has_corners = c < corners.bucket_count() && !corners.frames(c).empty();
+      if (!has_local && !has_corners && !hooks_.vertices) continue;
+      wait_for_hand_out();
+      const uint64_t first = uint64_t(c) * chunk;
+      const uint64_t n = std::min<uint64_t>(chunk, mesh_.vertex_count - std::min(first, mesh_.vertex_count));
       if (upper_loaded == c) {
         std::copy(pair.begin() + int64_t(chunk), pair.end(), pair.begin());
       } else {
         load_vertex_window(job_, scratch_, mesh_.vertices, c, pair.data());
       }
       upper_loaded = UINT32_MAX;
-      if (c + 1 < chunks) {
+      if (has_local && c + 1 < chunks) {
         load_vertex_window(job_, scratch_, mesh_.vertices, c + 1, pair.data() + chunk);
         upper_loaded = c + 1;
       }
-      const uint64_t first = uint64_t(c) * chunk;
-      for_each_frame(
-          job_, scratch_, "resolve", "local face frames", local.frames(c), local_size,
-          [&](const FrameHeader& header, Bytes& records, Lease&) {
-            // Records become block records followed by their cells, in one buffer.
-            const uint32_t size = mesh_.block_record_size;
-            Bytes out(header.count * (size + sizeof(uint32_t)));
-            auto* cells = reinterpret_cast<uint32_t*>(out.data() + header.count * size);
-            BlockFace face;
-            for (uint64_t i = 0; i < header.count; ++i) {
-              LocalFace local_face;
-              if (local_size == triangle32_record_size) {
-                uint32_t ids[3];
-                std::memcpy(ids, records.data() + i * local_size, sizeof ids);
-                local_face = {0, {ids[0], ids[1], ids[2]}};
-              } else {
-                std::memcpy(&local_face, records.data() + i * local_size, sizeof local_face);
+      if (hooks_.vertices && n > 0) {
+        hooks_.vertices(first, pair.data(), n);
+        handed_out = true;
+      }
+      if (has_local) {
+        for_each_frame(
+            job_, scratch_, "resolve", "local face frames", local.frames(c), local_size,
+            [&](const FrameHeader& header, Bytes& records, Lease&) {
+              // Records become block records followed by their cells, in one buffer.
+              const uint32_t size = mesh_.block_record_size;
+              Bytes out(header.count * (size + sizeof(uint32_t)));
+              auto* cells = reinterpret_cast<uint32_t*>(out.data() + header.count * size);
+              BlockFace face;
+              for (uint64_t i = 0; i < header.count; ++i) {
+                LocalFace local_face;
+                if (local_size == triangle32_record_size) {
+                  uint32_t ids[3];
+                  std::memcpy(ids, records.data() + i * local_size, sizeof ids);
+                  local_face = {0, {ids[0], ids[1], ids[2]}};
+                } else {
+                  std::memcpy(&local_face, records.data() + i * local_size, sizeof local_face);
+                }
+                face.id = local_face.id;
+                for (int k = 0; k < 3; ++k) face.positions[k] = pair[local_face.vertices[k] - first];
+                cells[i] = prepare(face, local_face.vertices) ? make_record(face, out.data() + i * size) : UINT32_MAX;
               }
-              face.id = local_face.id;
-              for (int k = 0; k < 3; ++k) face.positions[k] = pair[local_face.vertices[k] - first];
-              cells[i] = prepare(face, local_face.vertices) ? make_record(face, out.data() + i * size) : UINT32_MAX;
-            }
-            records.swap(out);
-          },
-          [&](const FrameHeader& header, Bytes& records, Lease&) {
-            const uint32_t size = mesh_.block_record_size;
-            const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * size);
-            for (uint64_t i = 0; i < header.count; ++i) {
-              if (cells[i] == UINT32_MAX) {
-                ++mesh_.dropped_faces;
-                continue;
+              records.swap(out);
+            },
+            [&](const FrameHeader& header, Bytes& records, Lease&) {
+              const uint32_t size = mesh_.block_record_size;
+              const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * size);
+              for (uint64_t i = 0; i < header.count; ++i) {
+                if (cells[i] == UINT32_MAX) {
+                  ++mesh_.dropped_faces;
+                  continue;
+                }
+                blocks.add(cells[i], records.data() + i * size);
+                ++mesh_.block_faces[cells[i]];
               }
-              blocks.add(cells[i], records.data() + i * size);
-              ++mesh_.block_faces[cells[i]];
-            }
-          },
-          sizeof(BlockFace) + sizeof(uint32_t));
-      job_.progress(0.4 + 0.3 * double(c + 1) / chunks, "resolve");
+            },
+            sizeof(BlockFace) + sizeof(uint32_t));
+      }
+      if (has_corners) {
+        for_each_frame(
+            job_, scratch_, "resolve", "corner frames", corners.frames(c), sizeof(CornerRef),
+            [&](const FrameHeader& header, Bytes& records, Lease&) {
+              const auto* refs = reinterpret_cast<const CornerRef*>(records.data());
+              Bytes out(header.count * sizeof(ResolvedCorner));
+              auto* res = reinterpret_cast<ResolvedCorner*>(out.data());
+              for (uint64_t i = 0; i < header.count; ++i) {
+                res[i] = {refs[i].corner, refs[i].vertex, pair[refs[i].vertex - first]};
+              }
+              records.swap(out);
+            },
+            [&](const FrameHeader& header, Bytes& records, Lease&) {
+              const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
+              for (uint64_t i = 0; i < header.count; ++i) resolved->add(uint32_t(res[i].corner / 3 / range), &res[i]);
+            },
+            sizeof(ResolvedCorner));
+      }
+      job_.progress(0.4 + 0.4 * double(c + 1) / chunks, "resolve");
     }
+    wait_for_hand_out();
+    mesh_.vertices_delivered = bool(hooks_.vertices);
     pair = {};
     give_back(std::move(pair_lease));
     collect_blocks(blocks);
     remove_files(local);
-  }
-
-  // Passes 3 and 4, for faces that span chunks: corners resolved chunk by chunk and
-  // regrouped by face-id range, then faces rebuilt range by range.
-  void resolve_corner_faces(BucketSpill& corners, uint64_t chunk, uint32_t chunks) {
-    std::optional<StageTimer> timer(std::in_place, job_, "resolve");
-    const uint64_t face_count = mesh_.face_count;
-    const uint64_t range = options_.range_faces
-                               ? options_.range_faces
-                               : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.3) / (3 * 32));
-    uint64_t range_count = std::max<uint64_t>((face_count + range - 1) / range, 1);
-    BucketSpill resolved(job_, scratch_, "resolved", sizeof(ResolvedCorner),
-                         spill_lease("corner resolver", 0.3, sizeof(ResolvedCorner)), uint32_t(range_count),
-                         "resolve");
-    for (uint32_t c = 0; c < chunks && c < corners.bucket_count(); ++c) {
-      if (corners.frames(c).empty()) continue;
-      uint64_t first = uint64_t(c) * chunk;
-      uint64_t n = std::min<uint64_t>(chunk, mesh_.vertex_count - first);
-      Lease window_lease = take("vertex window", n * sizeof(Point));
-      UninitializedVector<Point> positions(n);
-      load_vertex_window(job_, scratch_, mesh_.vertices, c, positions.data());
-      for_each_frame(
-          job_, scratch_, "resolve", "corner frames", corners.frames(c), sizeof(CornerRef),
-          [&](const FrameHeader& header, Bytes& records, Lease&) {
-            const auto* refs = reinterpret_cast<const CornerRef*>(records.data());
-            Bytes out(header.count * sizeof(ResolvedCorner));
-            auto* res = reinterpret_cast<ResolvedCorner*>(out.data());
-            for (uint64_t i = 0; i < header.count; ++i) {
-              res[i] = {refs[i].corner, refs[i].vertex, positions[refs[i].vertex - first]};
-            }
-            records.swap(out);
-          },
-          [&](const FrameHeader& header, Bytes& records, Lease&) {
-            const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
-            for (uint64_t i = 0; i < header.count; ++i) resolved.add(uint32_t(res[i].corner / 3 / range), &res[i]);
-          },
-          sizeof(ResolvedCorner));
-      positions = {};
-      give_back(std::move(window_lease));
-      job_.progress(0.7 + 0.1 * double(c + 1) / chunks, "resolve");
-    }
-    give_back(resolved.finish());
+    if (!spanning) return;
+    BucketSpill& resolved_corners = *resolved;
+    give_back(resolved_corners.finish());
     remove_files(corners);
     trim_allocator();
     timer.emplace(job_, "assemble");
 
-    BucketSpill blocks(job_, scratch_, "blocks-spanning", choose_block_layout(),
+    BucketSpill spanning_blocks(job_, scratch_, "blocks-spanning", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "assemble");
-    for (uint32_t r = 0; r < range_count && r < resolved.bucket_count(); ++r) {
-      if (resolved.records(r) == 0) continue;
+    for (uint32_t r = 0; r < range_count && r < resolved_corners.bucket_count(); ++r) {
+      if (resolved_corners.records(r) == 0) continue;
       uint64_t first_face = uint64_t(r) * range;
       uint64_t n = std::min<uint64_t>(range, face_count - first_face);
       // Slots for every face of the range; only spanning faces fill theirs.
@@ -952,7 +965,7 @@ class Loader {
       UninitializedVector<uint64_t> vertex_of(3 * n);
       UninitializedVector<Point> position_of(3 * n);
       std::vector<uint8_t> filled(n, 0);
-      for_each_frame(job_, scratch_, "assemble", "resolved frames", resolved.frames(r), sizeof(ResolvedCorner),
+      for_each_frame(job_, scratch_, "assemble", "resolved frames", resolved_corners.frames(r), sizeof(ResolvedCorner),
                      [&](const FrameHeader& header, Bytes& records, Lease&) {
                        const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
                        for (uint64_t i = 0; i < header.count; ++i) {
@@ -977,7 +990,7 @@ class Loader {
           ++mesh_.dropped_faces;
           continue;
         }
-        add_face(blocks, face);
+        add_face(spanning_blocks, face);
       }
       vertex_of = {};
       position_of = {};
@@ -986,8 +999,8 @@ class Loader {
       job_.check();
       job_.progress(0.8 + 0.1 * double(r + 1) / range_count, "assemble");
     }
-    collect_blocks(blocks);
-    remove_files(resolved);
+    collect_blocks(spanning_blocks);
+    remove_files(resolved_corners);
   }
 
   void remove_files(const BucketSpill& spill) {
@@ -1003,6 +1016,7 @@ class Loader {
   Job& job_;
   ScratchStore& scratch_;
   LoadOptions options_;
+  LoadHooks hooks_;
   InputStream input_;
   Lease reserve_;  // the loader's working set; parts are split off and merged back
   uint64_t capacity_ = 0;
@@ -1140,8 +1154,8 @@ void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& stor
 }
 
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
-                            const LoadOptions& options) {
-  return Loader(job, scratch, input, options).run();
+                            const LoadOptions& options, const LoadHooks& hooks) {
+  return Loader(job, scratch, input, options, hooks).run();
 }
 
 }  // namespace qemflow::engine

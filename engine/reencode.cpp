@@ -18,6 +18,7 @@ constexpr uint64_t vertices_per_write = 1 << 16;
 void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io::MeshWriter& writer) {
   StageStats& stage = job.stage("write");
   const VertexStore& store = mesh.vertices;
+  if (mesh.vertices_delivered) return;  // written by the loader's dereference
   if (store.is_resident()) {
     for (uint64_t first = 0; first < store.count; first += vertices_per_write) {
       uint64_t n = std::min(vertices_per_write, store.count - first);
@@ -169,19 +170,12 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
       Job& job;
       ~DrainIo() { job.io().drain(); }
     } drain_before_scratch_goes{job};
-    // The input as it is: re-encode keeps every vertex and face.
-    LoadedMesh mesh = load_into_blocks(job, scratch, options.input, LoadOptions::verbatim(options.load));
-
-    io::WriteOptions write_options;
-    // OBJ text is read back as double, so only the shortest double text keeps the bits.
-    std::string name = options.output.filename().string();
-    bool obj = name.ends_with(".obj") || name.ends_with(".obj.zst");
-    write_options.double_precision = !mesh.float_exact || obj;
-    std::unique_ptr<io::MeshWriter> writer = job.io().call("open output", [&] {
-      return io::open_mesh_writer(options.output, mesh.vertex_count, mesh.face_count, write_options);
-    });
-    // The writer lives and dies on the I/O thread: its destructor removes a
-    // half-written temporary file when something failed.
+    // The output writer: opened once the counts and the coordinate type are known
+    // (by the loader's `counted` hook when it goes out of core, so that it can write
+    // the vertices as its dereference loads them; else after the load). It lives and
+    // dies on the I/O thread: its destructor removes a half-written temporary file
+    // when something failed.
+    std::unique_ptr<io::MeshWriter> writer;
     struct WriterOnIo {
       Job& job;
       std::unique_ptr<io::MeshWriter>& writer;
@@ -193,6 +187,27 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
         }
       }
     } writer_guard{job, writer};
+    auto open_output = [&](const LoadedMesh& mesh) {
+      if (writer) return;
+      io::WriteOptions write_options;
+      // OBJ text is read back as double, so only the shortest double text keeps the bits.
+      std::string name = options.output.filename().string();
+      bool obj = name.ends_with(".obj") || name.ends_with(".obj.zst");
+      write_options.double_precision = !mesh.float_exact || obj;
+      writer = job.io().call("open output", [&] {
+        return io::open_mesh_writer(options.output, mesh.vertex_count, mesh.face_count, write_options);
+      });
+    };
+    LoadHooks hooks;
+    hooks.counted = open_output;
+    hooks.vertices = [&](uint64_t, const Point* points, uint64_t n) {
+      io::MeshWriter* out = writer.get();
+      job.io().submit("write vertices", [out, points, n] { out->write_vertices(points, n); }, job.error_handler(),
+                      n * sizeof(Point));
+    };
+    // The input as it is: re-encode keeps every vertex and face.
+    LoadedMesh mesh = load_into_blocks(job, scratch, options.input, LoadOptions::verbatim(options.load), hooks);
+    open_output(mesh);
     StageTimer timer(job, "write");
     const bool blocks_in_memory = mesh.blocks_resident();
     write_vertices(job, scratch, mesh, *writer);
