@@ -2,13 +2,16 @@
 // bench/reencode.sh:
 //   engine_bench reencode IN OUT --mem-budget SIZE [--scratch DIR] [--trace F] [--report F]
 //                [--threads N] [--quiet]        the re-encode pipeline (= simplify --ratio 1)
-//   engine_bench io-baseline IN SCRATCH_DIR BYTES   read IN and write BYTES through the
-//                I/O thread alone: the floor the pipeline's throughput is compared with
+//   engine_bench io-baseline IN SCRATCH_DIR BYTES [SCRATCH_WRITE SCRATCH_READ]
+//                read IN and write BYTES through the I/O thread alone: the floor the
+//                pipeline's throughput is compared with (and, with the scratch bytes a
+//                run moved, the floor for all of its I/O)
 #include <benchmark/benchmark.h>
 
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <numeric>
 #include <string>
 
@@ -107,43 +110,73 @@ int reencode_main(int argc, char** argv) {
 }
 
 // Reads IN in 4 MiB pieces and writes BYTES to a file in SCRATCH_DIR, every piece a
-// task on the I/O thread (no compute at all): the disk-bound floor.
+// task on the I/O thread (no compute at all): the disk-bound floor. With SCRATCH_WRITE
+// and SCRATCH_READ, it also writes that many bytes to a scratch file between the two
+// and reads that many back (the file again from its start when it is shorter): the
+// floor for every byte a run moved through its I/O thread, scratch included. Prints
+// the seconds of input + output alone ("seconds") and with the scratch bytes
+// ("seconds_with_scratch"), each phase timed on its own.
 int io_baseline_main(int argc, char** argv) {
-  if (argc != 5) {
-    std::fprintf(stderr, "usage: engine_bench io-baseline IN SCRATCH_DIR BYTES\n");
+  if (argc != 5 && argc != 7) {
+    std::fprintf(stderr, "usage: engine_bench io-baseline IN SCRATCH_DIR BYTES [SCRATCH_WRITE SCRATCH_READ]\n");
     return 2;
   }
   std::string in = argv[2];
   std::filesystem::path out = std::filesystem::path(argv[3]) / "io-baseline.bin";
+  std::filesystem::path spill = std::filesystem::path(argv[3]) / "io-baseline-scratch.bin";
   uint64_t to_write = std::stoull(argv[4]);
+  uint64_t scratch_write = argc == 7 ? std::stoull(argv[5]) : 0;
+  uint64_t scratch_read = argc == 7 ? std::stoull(argv[6]) : 0;
   Trace trace;
   Activity activity;
-  auto start = Clock::now();
-  uint64_t read_bytes = 0;
+  uint64_t read_bytes = 0, scratch_read_bytes = 0;
+  double phase[4] = {0, 0, 0, 0};  // read input, write scratch, read scratch, write output
   {
     IoThread io(&trace, &activity);
     auto buffer = std::make_shared<std::vector<char>>(4 << 20);
-    io.call("read", [&] {
-      std::ifstream file(in, std::ios::binary);
-      while (file.read(buffer->data(), std::streamsize(buffer->size())) || file.gcount() > 0) {
-        read_bytes += uint64_t(file.gcount());
-      }
-    });
-    io.call("write", [&] {
-      std::ofstream file(out, std::ios::binary);
-      for (uint64_t left = to_write; left > 0;) {
+    auto timed = [&](int which, const std::function<void()>& body) {
+      auto start = Clock::now();
+      io.call("phase", body);
+      phase[which] = std::chrono::duration<double>(Clock::now() - start).count();
+    };
+    auto write_file = [&](const std::filesystem::path& path, uint64_t bytes) {
+      std::ofstream file(path, std::ios::binary);
+      for (uint64_t left = bytes; left > 0;) {
         uint64_t n = std::min<uint64_t>(left, buffer->size());
         file.write(buffer->data(), std::streamsize(n));
         left -= n;
       }
       file.flush();
-      if (!file) throw Error(ErrorKind::resource, out.string() + ": write failed");
+      if (!file) throw Error(ErrorKind::resource, path.string() + ": write failed");
+    };
+    timed(0, [&] {
+      std::ifstream file(in, std::ios::binary);
+      while (file.read(buffer->data(), std::streamsize(buffer->size())) || file.gcount() > 0) {
+        read_bytes += uint64_t(file.gcount());
+      }
     });
+    if (scratch_write > 0) {
+      timed(1, [&] { write_file(spill, scratch_write); });
+      timed(2, [&] {
+        while (scratch_read_bytes < scratch_read) {
+          std::ifstream file(spill, std::ios::binary);
+          while (scratch_read_bytes < scratch_read &&
+                 (file.read(buffer->data(), std::streamsize(std::min<uint64_t>(buffer->size(), scratch_read - scratch_read_bytes))) ||
+                  file.gcount() > 0)) {
+            scratch_read_bytes += uint64_t(file.gcount());
+          }
+        }
+      });
+      std::filesystem::remove(spill);
+    }
+    timed(3, [&] { write_file(out, to_write); });
   }
-  double seconds = std::chrono::duration<double>(Clock::now() - start).count();
   std::filesystem::remove(out);
-  std::printf("{\"read_bytes\": %llu, \"written_bytes\": %llu, \"seconds\": %.3f}\n",
-              static_cast<unsigned long long>(read_bytes), static_cast<unsigned long long>(to_write), seconds);
+  std::printf("{\"read_bytes\": %llu, \"written_bytes\": %llu, \"scratch_written_bytes\": %llu, "
+              "\"scratch_read_bytes\": %llu, \"seconds\": %.3f, \"seconds_with_scratch\": %.3f}\n",
+              static_cast<unsigned long long>(read_bytes), static_cast<unsigned long long>(to_write),
+              static_cast<unsigned long long>(scratch_write), static_cast<unsigned long long>(scratch_read_bytes),
+              phase[0] + phase[3], phase[0] + phase[1] + phase[2] + phase[3]);
   return 0;
 }
 
