@@ -221,9 +221,11 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
   return frame;
 }
 
-FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t record_size,
-                              void* out, uint64_t max_records, const std::string& where) {
-  if (size < frame_header_bytes) corrupt(where, "shorter than its header");
+namespace {
+
+// The checked header of a frame whose payload holds `payload_size` bytes.
+FrameHeader check_header(const std::byte* frame, size_t payload_size, uint32_t record_size, uint64_t max_records,
+                         const std::string& where) {
   if (std::memcmp(frame, magic, 4) != 0) corrupt(where, "bad magic");
   if (get<uint16_t>(frame + 4) != frame_version) corrupt(where, "unknown version");
   if (get<uint64_t>(frame + 36) != fnv1a(frame, 36)) corrupt(where, "header checksum mismatch");
@@ -236,12 +238,41 @@ FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t reco
   if ((flags & ~flag_raw) != 0) corrupt(where, "unknown flags");
   header.raw = (flags & flag_raw) != 0;
   if (header.record_size != record_size) corrupt(where, "unexpected record size");
-  if (header.payload_bytes != size - frame_header_bytes) corrupt(where, "payload size mismatch");
+  if (header.payload_bytes != payload_size) corrupt(where, "payload size mismatch");
   if (header.count > max_records) corrupt(where, "more records than expected");
+  if (header.raw && header.payload_bytes != header.count * record_size + sizeof(uint64_t)) {
+    corrupt(where, "raw payload size mismatch");
+  }
+  return header;
+}
+
+}  // namespace
+
+FrameHeader decode_frame_payload(const std::byte* header_bytes, Bytes& payload, uint32_t record_size,
+                                 const std::string& where) {
+  const uint64_t max_records = (uint64_t(1) << 40) / std::max<uint32_t>(record_size, 1);
+  FrameHeader header = check_header(header_bytes, payload.size(), record_size, max_records, where);
+  const size_t raw = header.count * record_size;
+  if (header.raw) {
+    if (get<uint64_t>(payload.data() + raw) != io::xxh64(payload.data(), raw)) corrupt(where, "payload checksum mismatch");
+    payload.resize(raw);  // the records are the payload: no copy
+    return header;
+  }
+  Bytes records(raw);
+  size_t got = ZSTD_decompressDCtx(contexts().d, records.data(), raw, payload.data(), payload.size());
+  if (ZSTD_isError(got)) corrupt(where, ZSTD_getErrorName(got));
+  if (got != raw) corrupt(where, "payload decodes to the wrong size");
+  payload.swap(records);
+  return header;
+}
+
+FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t record_size,
+                              void* out, uint64_t max_records, const std::string& where) {
+  if (size < frame_header_bytes) corrupt(where, "shorter than its header");
+  FrameHeader header = check_header(frame, size - frame_header_bytes, record_size, max_records, where);
   size_t raw = header.count * record_size;
   if (header.raw) {
     const std::byte* payload = frame + frame_header_bytes;
-    if (header.payload_bytes != raw + sizeof(uint64_t)) corrupt(where, "raw payload size mismatch");
     if (get<uint64_t>(payload + raw) != io::xxh64(payload, raw)) corrupt(where, "payload checksum mismatch");
     std::memcpy(out, payload, raw);
     return header;

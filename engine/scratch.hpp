@@ -143,6 +143,13 @@ FrameHeader decode_frame(const std::byte* frame, size_t size, uint32_t record_si
 FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t record_size,
                               void* out, uint64_t max_records, const std::string& where);
 
+// A frame read as its header (frame_header_bytes) and its payload apart: a raw
+// payload is checked and trimmed in place to its records (no copy), a zstd payload is
+// decoded into a buffer that replaces it. Either way `payload` ends holding exactly
+// the frame's records. Same checks and errors as decode_frame.
+FrameHeader decode_frame_payload(const std::byte* header, Bytes& payload, uint32_t record_size,
+                                 const std::string& where);
+
 // Where a frame lives.
 struct FrameRef {
   uint32_t file = 0;

@@ -61,6 +61,9 @@ TEST(Reencode, ResidentVerticesGiveTheSameMesh) {
   options.load.faces_per_block = 1'000;  // ~20 blocks
   auto result = run_reencode(governor, options, {});
   EXPECT_FALSE(result.report["out_of_core_dereference"].get<bool>());
+  // Triangle-only blocks that fit the budget stay in memory: no scratch at all.
+  EXPECT_TRUE(result.report["blocks_in_memory"].get<bool>());
+  EXPECT_EQ(result.report["scratch_bytes_written"].get<uint64_t>(), 0u);
   EXPECT_EQ(result.faces, 20'000u);
   expect_same_mesh(in, dir / "out.ply");
   EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 2);  // in, out: scratch gone
@@ -81,6 +84,10 @@ TEST(Reencode, OutOfCoreDereferenceWithTinyWindowsGivesTheSameMesh) {
     EXPECT_GT(result.report["local_faces"].get<uint64_t>(), 0u);     // both dereference paths ran
     EXPECT_GT(result.report["spanning_faces"].get<uint64_t>(), 0u);
     EXPECT_EQ(result.report["scratch_codec"], codec == ScratchCodec::raw ? "raw" : "zstd");
+    EXPECT_FALSE(result.report["blocks_in_memory"].get<bool>());
+    EXPECT_EQ(result.report["block_record_bytes"], triangle32_record_size);
+    // One walk over the vertex chunks: every frame written to scratch is read back once.
+    EXPECT_EQ(result.report["scratch_bytes_read"], result.report["scratch_bytes_written"]);
     written[codec == ScratchCodec::raw ? 0 : 1] = result.report["scratch_bytes_written"].get<uint64_t>();
     expect_same_mesh(in, dir / "out.obj");
     std::filesystem::remove(dir / "out.obj");

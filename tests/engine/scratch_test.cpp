@@ -53,6 +53,35 @@ TEST(Frame, CorruptionIsDetected) {
   EXPECT_THROW(decode_frame(frame.data(), frame.size(), 4, out, "t"), Error);  // wrong record size
 }
 
+// for_each_frame reads a frame's header and payload apart; a raw payload becomes the
+// records in place (the buffer is only trimmed), a zstd one is decoded.
+TEST(Frame, PayloadReadApartFromItsHeaderDecodesBothCodecsAndCatchesCorruption) {
+  std::vector<uint32_t> values(3000);
+  std::iota(values.begin(), values.end(), 11);
+  for (FrameCodec codec : {FrameCodec::uncompressed(), FrameCodec::zstd()}) {
+    Bytes frame = encode_frame(5, 4, values.data(), values.size(), codec);
+    auto payload_of = [&](const Bytes& f) { return Bytes(f.begin() + frame_header_bytes, f.end()); };
+    Bytes payload = payload_of(frame);
+    const std::byte* before = payload.data();
+    FrameHeader header = decode_frame_payload(frame.data(), payload, 4, "t");
+    EXPECT_EQ(header.tag, 5u);
+    EXPECT_EQ(header.count, values.size());
+    ASSERT_EQ(payload.size(), values.size() * 4);
+    EXPECT_EQ(std::memcmp(payload.data(), values.data(), payload.size()), 0);
+    if (codec.raw) {
+      EXPECT_EQ(payload.data(), before);  // no copy
+    }
+    Bytes bad = payload_of(frame);
+    bad[bad.size() / 2] ^= std::byte{0x10};
+    EXPECT_THROW(decode_frame_payload(frame.data(), bad, 4, "t"), Error);
+    Bytes short_payload = payload_of(frame);
+    short_payload.pop_back();
+    EXPECT_THROW(decode_frame_payload(frame.data(), short_payload, 4, "t"), Error);
+    Bytes again = payload_of(frame);
+    EXPECT_THROW(decode_frame_payload(frame.data(), again, 8, "t"), Error);  // wrong record size
+  }
+}
+
 TEST(Frame, RawFramesRoundTripFromPiecesAndCatchCorruption) {
   std::vector<uint32_t> values(3000);
   std::iota(values.begin(), values.end(), 0);
