@@ -406,6 +406,23 @@ class Loader {
     }
   }
 
+  // Triangle-only records of the input's faces as they are (no weld, every face): the
+  // lean path, without a BlockFace per face.
+  bool verbatim_triangles() const {
+    return options_.triangles_only && !options_.weld && !options_.drop_repeated_vertex_faces && !options_.degrees;
+  }
+  // A triangle record at `out` (block_record_size bytes); returns its cell (the same
+  // as make_record's). Any thread.
+  uint32_t triangle_record(const Triangle& t, const Point& a, const Point& b, const Point& c, std::byte* out) const {
+    if (mesh_.block_record_size == triangle32_record_size) {
+      const uint32_t ids[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
+      std::memcpy(out, ids, sizeof ids);
+    } else {
+      std::memcpy(out, t.data(), sizeof(Triangle));
+    }
+    return mesh_.grid.cell_of(barycenter({a, b, c}));
+  }
+
   // Once every coordinate has been seen (and the vertex count is known): blocks store
   // triangles only when asked, else floats when that is exact.
   uint32_t choose_block_layout() {
@@ -591,6 +608,17 @@ class Loader {
       const auto& batch = item.batch;
       item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
       item.cells.resize(batch.triangles.size());
+      if (verbatim_triangles()) {
+        for (size_t i = 0; i < batch.triangles.size(); ++i) {
+          const Triangle& t = batch.triangles[i];
+          for (uint64_t v : t) {
+            if (v >= vertex_count) index_out_of_range(input_.path, batch.first_triangle + i, v, vertex_count);
+          }
+          item.cells[i] = triangle_record(t, positions[t[0]], positions[t[1]], positions[t[2]],
+                                          item.block_records.data() + i * mesh_.block_record_size);
+        }
+        return;
+      }
       BlockFace face;
       size_t kept = 0;
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
@@ -891,6 +919,16 @@ class Loader {
               const uint32_t size = mesh_.block_record_size;
               Bytes out(header.count * (size + sizeof(uint32_t)));
               auto* cells = reinterpret_cast<uint32_t*>(out.data() + header.count * size);
+              if (local_size == triangle32_record_size && verbatim_triangles()) {
+                for (uint64_t i = 0; i < header.count; ++i) {
+                  uint32_t ids[3];
+                  std::memcpy(ids, records.data() + i * local_size, sizeof ids);
+                  cells[i] = triangle_record({ids[0], ids[1], ids[2]}, pair[ids[0] - first], pair[ids[1] - first],
+                                             pair[ids[2] - first], out.data() + i * size);
+                }
+                records.swap(out);
+                return;
+              }
               BlockFace face;
               for (uint64_t i = 0; i < header.count; ++i) {
                 LocalFace local_face;
