@@ -205,19 +205,18 @@ void finish_state(Job& job, ScratchStore& scratch, MeshState& state) {
   job.io().call("finalize state", [&] { scratch.finalize(state.file); });
 }
 
-// Splits faces (with a lookup for their vertex records) into chunks of at most
-// `chunk_faces`, in the given order, and writes them.
-template <class VertexOf>
-void write_faces_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, uint32_t owner,
-                           const std::vector<FaceRecord>& faces, uint64_t chunk_faces, VertexOf vertex_of) {
-  // Chunks are made and encoded in parallel, a batch at a time (bounded memory), and
-  // queued for writing in order.
+// Writes a patch's owned output as chunks of at most `chunk_faces` faces, taken in
+// `order` (indices into out.faces). Chunks are made from the output's local indices
+// directly (no gid lookups), and made and encoded in parallel, a batch at a time
+// (bounded memory), queued for writing in order.
+void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, uint32_t owner, const PatchOutput& out,
+                            const std::vector<uint32_t>& order, uint64_t chunk_faces) {
   struct Made {
     ChunkMeta meta;
     uint64_t blob_size = 0;
     std::shared_ptr<Bytes> encoded;
   };
-  const size_t chunks = (faces.size() + chunk_faces - 1) / chunk_faces;
+  const size_t chunks = (order.size() + chunk_faces - 1) / chunk_faces;
   // A batch per compute thread: what is in flight here (blob + encoded frame, ~2.6 MB
   // per 8192-face chunk) is outside the patch lease, so it stays this small.
   const size_t kBatch = size_t(std::max(1, job.threads()));
@@ -228,19 +227,44 @@ void write_faces_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, ui
     job.arena().execute([&] {
       tbb::parallel_for(size_t(0), n_batch, [&](size_t i) {
         const size_t first = (batch + i) * chunk_faces;
-        const size_t n = std::min<size_t>(chunk_faces, faces.size() - first);
-        std::vector<FaceRecord> part(faces.begin() + first, faces.begin() + first + n);
-        std::vector<uint64_t> gids;
-        gids.reserve(3 * n);
-        for (const auto& f : part)
-          for (uint64_t g : f.v) gids.push_back(g);
-        std::sort(gids.begin(), gids.end());
-        gids.erase(std::unique(gids.begin(), gids.end()), gids.end());
-        std::vector<VertexRecord> verts;
-        verts.reserve(gids.size());
-        for (uint64_t g : gids) verts.push_back(vertex_of(g));
-        made[i].meta = meta_of(owner, part, verts);
-        const Bytes blob = make_blob(part, verts);
+        const size_t n = std::min<size_t>(chunk_faces, order.size() - first);
+        // Local vertex ids ascending = gids ascending (the output is sorted by gid).
+        std::vector<uint32_t> locals;
+        locals.reserve(3 * n);
+        for (size_t j = first; j < first + n; ++j)
+          for (uint32_t v : out.faces[order[j]]) locals.push_back(v);
+        std::sort(locals.begin(), locals.end());
+        locals.erase(std::unique(locals.begin(), locals.end()), locals.end());
+        const uint64_t nf = n, nv = locals.size();
+        Bytes blob(blob_bytes(nf, nv));
+        std::memcpy(blob.data(), &nf, 8);
+        std::memcpy(blob.data() + 8, &nv, 8);
+        auto* faces = reinterpret_cast<FaceRecord*>(blob.data() + 16);
+        auto* vertices = reinterpret_cast<VertexRecord*>(blob.data() + 16 + nf * sizeof(FaceRecord));
+        ChunkMeta& meta = made[i].meta;
+        meta.owner = owner;
+        meta.faces = nf;
+        for (size_t j = 0; j < n; ++j) {
+          const uint32_t f = order[first + j];
+          const auto& t = out.faces[f];
+          faces[j] = {out.face_gids[f], {out.vertex_gids[t[0]], out.vertex_gids[t[1]], out.vertex_gids[t[2]]}, owner, 0};
+          const Point& p0 = out.positions[t[0]];
+          const Point& p1 = out.positions[t[1]];
+          const Point& p2 = out.positions[t[2]];
+          meta.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
+        }
+        for (size_t k = 0; k < nv; ++k) {
+          const uint32_t v = locals[k];
+          VertexRecord r;
+          r.gid = out.vertex_gids[v];
+          r.position = out.positions[v];
+          r.quadric = out.quadrics[v];
+          r.degree = out.degrees[v];
+          r.locked = out.locked[v];
+          r.has_quadric = 1;
+          vertices[k] = r;
+          meta.box.add(r.position);
+        }
         made[i].blob_size = blob.size();
         made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob.data(), blob.size()));
       });
@@ -556,6 +580,49 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
   return out;
 }
 
+// The finish's patch: the whole gathered state as one PatchInput (everything owned,
+// nothing incomplete). Unlike build_patch it needs no fans or BFS, and it releases each
+// gathered array as soon as its part of the input exists, so the finish peaks in the
+// decimator (kInCoreBytesPerFace) rather than here. `g` is consumed.
+PatchInput build_whole_patch(Gathered&& g) {
+  PatchInput in;
+  const size_t nv = g.vertices.size(), nf = g.faces.size();
+  const bool given_quadrics = nv > 0 && g.vertices[0].has_quadric;
+  // Faces first: they need only the vertex gids (local index = rank among the sorted,
+  // unique gids), and the 40-byte face records go before the vertex arrays are made.
+  in.vertex_gids.resize(nv);
+  for (size_t v = 0; v < nv; ++v) in.vertex_gids[v] = g.vertices[v].gid;
+  in.faces.resize(nf);
+  in.face_gids.resize(nf);
+  std::atomic<bool> missing = false;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t f = range.begin(); f < range.end(); ++f) {
+      in.face_gids[f] = g.faces[f].fid;
+      for (int k = 0; k < 3; ++k) {
+        const uint64_t gid = g.faces[f].v[k];
+        const auto it = std::lower_bound(in.vertex_gids.begin(), in.vertex_gids.end(), gid);
+        if (it == in.vertex_gids.end() || *it != gid) {
+          missing = true;
+          continue;
+        }
+        in.faces[f][k] = uint32_t(it - in.vertex_gids.begin());
+      }
+    }
+  });
+  if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+  release_memory(g.faces);
+  in.positions.resize(nv);
+  for (size_t v = 0; v < nv; ++v) in.positions[v] = g.vertices[v].position;
+  if (given_quadrics) {
+    in.locked.resize(nv);
+    for (size_t v = 0; v < nv; ++v) in.locked[v] = g.vertices[v].locked;
+    in.quadrics.resize(nv);
+    for (size_t v = 0; v < nv; ++v) in.quadrics[v] = g.vertices[v].quadric;
+  }
+  release_memory(g.vertices);
+  return in;
+}
+
 void run_patch_plan(PatchDecimator& d, const PatchPlan& plan) {
   if (plan.kind == PatchPlan::Kind::summary_only) return;
   d.prepare_round();
@@ -677,35 +744,26 @@ struct Runner {
   }
 
   void export_patch(const PatchOutput& out, uint32_t p, MeshState& next) {
-    std::vector<FaceRecord> faces(out.faces.size());
     Box box;
     for (const auto& pos : out.positions) box.add(pos);
-    std::vector<std::pair<uint32_t, uint32_t>> order(out.faces.size());
-    for (size_t f = 0; f < out.faces.size(); ++f) {
-      const auto& t = out.faces[f];
-      faces[f] = {out.face_gids[f], {out.vertex_gids[t[0]], out.vertex_gids[t[1]], out.vertex_gids[t[2]]}, p, 0};
-      Point c{};
-      for (uint32_t v : t)
-        for (int k = 0; k < 3; ++k) c[k] += out.positions[v][k] / 3;
-      order[f] = {morton(c, box), uint32_t(f)};
-    }
-    std::sort(order.begin(), order.end());
-    std::vector<FaceRecord> sorted(faces.size());
-    for (size_t i = 0; i < order.size(); ++i) sorted[i] = faces[order[i].second];
-    faces = {};
-    auto vertex_of = [&](uint64_t gid) {
-      const auto it = std::lower_bound(out.vertex_gids.begin(), out.vertex_gids.end(), gid);
-      const size_t i = size_t(it - out.vertex_gids.begin());
-      VertexRecord r;
-      r.gid = gid;
-      r.position = out.positions[i];
-      r.quadric = out.quadrics[i];
-      r.degree = out.degrees[i];
-      r.locked = out.locked[i];
-      r.has_quadric = 1;
-      return r;
-    };
-    write_faces_as_chunks(job, scratch, next, p, sorted, options.chunk_faces, vertex_of);
+    // Faces in Morton order of their centroids: chunks of spatially close faces.
+    std::vector<std::pair<uint32_t, uint32_t>> keyed(out.faces.size());
+    job.arena().execute([&] {
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, out.faces.size(), 4096),
+                        [&](const tbb::blocked_range<size_t>& range) {
+                          for (size_t f = range.begin(); f < range.end(); ++f) {
+                            Point c{};
+                            for (uint32_t v : out.faces[f])
+                              for (int k = 0; k < 3; ++k) c[k] += out.positions[v][k] / 3;
+                            keyed[f] = {morton(c, box), uint32_t(f)};
+                          }
+                        });
+      tbb::parallel_sort(keyed.begin(), keyed.end());  // keys unique: any thread count, one order
+    });
+    std::vector<uint32_t> order(keyed.size());
+    for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+    release_memory(keyed);
+    write_output_as_chunks(job, scratch, next, p, out, order, options.chunk_faces);
     job.io().drain();
     job.check();
   }
@@ -796,12 +854,10 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                                        std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
                                        std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
                                        [&] { return job.stopped(); });
-  Gathered g = load_candidates(job, scratch, *state, 0, Box{}, true);
-  BuiltPatch built = build_patch(g, 0, 0, true);
-  g = {};
+  PatchInput whole = build_whole_patch(load_candidates(job, scratch, *state, 0, Box{}, true));
   replace_state(new_state());
   job.arena().execute([&] {
-    PatchDecimator d(std::move(built.input), params);
+    PatchDecimator d(std::move(whole), params);
     if (first || true) {
       const EpochRunStats run = run_epochs(d, st.target_faces, epoch);
       st.rounds += run.rounds;

@@ -79,13 +79,15 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
                           const OocOptions& options);
 
 // Bytes per face (owned + halo) of a patch while it is gathered and decimated, and of the
-// in-core finish; the budget rules use them. The finish peaks while the gathered state
-// (face record 40 B + vertex records ~60 B per face) and the built PatchInput (~80 B) are
-// both alive, and then in the decimator (~130 B/face measured in core, nodes/decimate
-// README) while its input is freed (measured peaks: 256 B/face at 0.8M faces, more on small
-// meshes where fixed buffers weigh: 320 for the finish).
+// in-core finish; the budget rules use them. A patch peaks while the gathered state
+// (face record 40 B + vertex records ~60 B per face), the BFS arrays and the built
+// PatchInput (~80 B) are alive together. The finish builds its input without the BFS and
+// frees each gathered array as soon as its part of the input exists (build_whole_patch),
+// so it peaks in the decimator itself: measured 131 B/face (baseline excluded) at 1.76M
+// faces (`qemflow simplify b2m.ply --clusters 2 --in-core-faces 1900000`, VmRSS sampled);
+// 170 leaves room for small meshes, where fixed buffers weigh more.
 inline constexpr uint64_t kPatchBytesPerFace = 260;
-inline constexpr uint64_t kInCoreBytesPerFace = 320;
+inline constexpr uint64_t kInCoreBytesPerFace = 170;
 
 // The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured
 // baseline), job, scratch, load, simplify_blocks, write (same bytes as --in-core),
