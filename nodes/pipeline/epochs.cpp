@@ -782,7 +782,11 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t in_core_faces =
       options.in_core_faces ? options.in_core_faces : uint64_t(0.9 * double(capacity)) / kInCoreBytesPerFace;
 
-  const Partition partition = partition_blocks(job, scratch, mesh, options.partition);
+  // A mesh that fits the finish needs no partition (no sampling, clusters or planes):
+  // it goes in core at once. An explicit --clusters is kept (tests force epochs so).
+  PartitionOptions partition_options = options.partition;
+  if (partition_options.clusters == 0 && mesh.kept_faces() <= in_core_faces) partition_options.clusters = 1;
+  const Partition partition = partition_blocks(job, scratch, mesh, partition_options);
   st.patches = partition.clusters;
 
   auto state = std::make_unique<MeshState>();

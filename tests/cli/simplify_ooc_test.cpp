@@ -95,6 +95,24 @@ TEST(SimplifyOoc, DragonOnce) {
   expect_partition_invariant(path, "--ratio 0.01", {4}, 750000);
 }
 
+TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
+  // 120k faces need ~20 MB in the finish but would get several patches from the budget
+  // rule (clusters_for); under a 64M budget the run goes in core at once
+  // (no sampling, clusters or epochs) and still writes the --in-core file.
+  TempDir dir;
+  const auto mesh = dir / "small.ply";
+  run_ok(q() + " gen " + mesh.string() + " --faces 120000 --quiet");
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.05 --in-core --quiet");
+  const auto report = dir / "r.json";
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+         " --ratio 0.05 --mem-budget 64M --quiet --report " + report.string() + " --scratch " + dir.path().string());
+  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply"));
+  const auto r = read_json(report);
+  EXPECT_EQ(r["patches"].get<int>(), 1);
+  EXPECT_EQ(r["out_of_core_epochs"].get<int>(), 0);
+  EXPECT_EQ(r["in_core_faces"].get<uint64_t>(), 120000u);
+}
+
 TEST(SimplifyOoc, SafeAndExactTarget) {
   TempDir dir;
   const auto mesh = dir / "blob.ply";
