@@ -697,6 +697,7 @@ struct Runner {
         const Box box = owner_box[p].grown(margin);
         Lease lease = patch_lease(owner_faces[p] * 2);
         Gathered g = load_candidates(job, scratch, state, p, box, false);
+        stats.gathered_faces_total += g.faces.size();
         if (g.faces.size() * kPatchBytesPerFace > lease.bytes())
           lease.try_grow(g.faces.size() * kPatchBytesPerFace - lease.bytes());
         BuiltPatch built = build_patch(g, p, rings, false);
@@ -707,6 +708,8 @@ struct Runner {
           continue;
         }
         stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
+        stats.patch_faces_total += built.input.faces.size();
+        stats.owned_faces_total += owner_faces[p];
         bool ok = true;
         RoundSummary summary;
         std::vector<Candidate> owned;

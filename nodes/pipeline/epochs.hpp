@@ -66,6 +66,10 @@ struct OocStats {
   int max_rings = 0;
   uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)
   uint64_t patch_faces_max = 0;      // largest patch (owned + halo)
+  // Summed over the out-of-core patch builds (redos included): faces read by the gathers
+  // (owned + every face the box filter kept), faces of the built patches (owned + halo)
+  // and owned faces; their ratios say what the halo and the gather cost.
+  uint64_t gathered_faces_total = 0, patch_faces_total = 0, owned_faces_total = 0;
 };
 
 struct OocResult {

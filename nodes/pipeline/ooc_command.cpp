@@ -83,6 +83,9 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;
     report["largest_patch_faces"] = st.patch_faces_max;
+    report["gathered_faces_total"] = st.gathered_faces_total;
+    report["patch_faces_total"] = st.patch_faces_total;
+    report["owned_faces_total"] = st.owned_faces_total;
     engine::report_scratch(report, scratch);
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
