@@ -20,22 +20,23 @@ trap 'rm -rf "$WORK"' EXIT
 
 echo "generating $FACES faces..." >&2
 "$QEMFLOW" gen "$WORK/in.ply" --faces "$FACES" --quiet >&2
-echo "faces,budget,budget_bytes,patches,epochs,out_of_core_epochs,wall_s,faces_per_s,peak_rss_bytes,scratch_read_bytes,scratch_written_bytes,io_busy_pct" > "$CSV"
+echo "faces,budget,budget_bytes,patches,epochs,out_of_core_epochs,in_core_faces,wall_s,cpu_s,load1,faces_per_s,peak_rss_bytes,scratch_read_bytes,scratch_written_bytes,io_busy_pct" > "$CSV"
 for BUDGET in "${BUDGETS[@]}"; do
   echo "simplify at --mem-budget $BUDGET..." >&2
+  LOAD=$(cut -d' ' -f1 /proc/loadavg)  # wall time follows the machine's load; CPU seconds much less
   if ! "$QEMFLOW" simplify "$WORK/in.ply" "$WORK/out.ply" --ratio 0.01 --mem-budget "$BUDGET" --scratch "$WORK" \
       --report "$WORK/report.json" --quiet; then
     echo "  (refused or failed at $BUDGET)" >&2
     continue
   fi
-  /usr/bin/python3 - "$WORK/report.json" "$FACES" "$BUDGET" >> "$CSV" <<'PY'
+  /usr/bin/python3 - "$WORK/report.json" "$FACES" "$BUDGET" "$LOAD" >> "$CSV" <<'PY'
 import json, sys
 r = json.load(open(sys.argv[1]))
 wall = r["wall_seconds"]
 io = 100 * r["io_busy_seconds"] / wall if wall else 0
 print(f"{sys.argv[2]},{sys.argv[3]},{r['budget_bytes']},{r['patches']},{r['epochs']},{r['out_of_core_epochs']},"
-      f"{wall:.2f},{r['input_faces'] / wall:.0f},{r['peak_rss_bytes']},{r['scratch_bytes_read']},"
-      f"{r['scratch_bytes_written']},{io:.0f}")
+      f"{r['in_core_faces']},{wall:.2f},{r['cpu_seconds']:.1f},{sys.argv[4]},{r['input_faces'] / wall:.0f},"
+      f"{r['peak_rss_bytes']},{r['scratch_bytes_read']},{r['scratch_bytes_written']},{io:.0f}")
 PY
   rm -f "$WORK/out.ply"
 done
