@@ -433,11 +433,13 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state
       },
       0);
   // Keys are unique (face ids; a gid's records are equal copies), so a parallel sort
-  // gives the same arrays.
-  tbb::parallel_sort(g.faces.begin(), g.faces.end(),
-                     [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
-  tbb::parallel_sort(g.vertices.begin(), g.vertices.end(),
-                     [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
+  // gives the same arrays. In the job's arena: --threads holds here too.
+  job.arena().execute([&] {
+    tbb::parallel_sort(g.faces.begin(), g.faces.end(),
+                       [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
+    tbb::parallel_sort(g.vertices.begin(), g.vertices.end(),
+                       [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
+  });
   g.vertices.erase(std::unique(g.vertices.begin(), g.vertices.end(),
                                [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
                    g.vertices.end());
@@ -700,7 +702,8 @@ struct Runner {
         stats.gathered_faces_total += g.faces.size();
         if (g.faces.size() * kPatchBytesPerFace > lease.bytes())
           lease.try_grow(g.faces.size() * kPatchBytesPerFace - lease.bytes());
-        BuiltPatch built = build_patch(g, p, rings, false);
+        BuiltPatch built;
+        job.arena().execute([&] { built = build_patch(g, p, rings, false); });
         g = {};
         if (built.margin_too_small) {
           margin_factor[p] *= 2;
@@ -861,7 +864,11 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                                        std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
                                        std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
                                        [&] { return job.stopped(); });
-  PatchInput whole = build_whole_patch(load_candidates(job, scratch, *state, 0, Box{}, true));
+  PatchInput whole;
+  {
+    Gathered g = load_candidates(job, scratch, *state, 0, Box{}, true);
+    job.arena().execute([&] { whole = build_whole_patch(std::move(g)); });
+  }
   replace_state(new_state());
   job.arena().execute([&] {
     PatchDecimator d(std::move(whole), params);

@@ -95,6 +95,19 @@ TEST(SimplifyOoc, DragonOnce) {
   expect_partition_invariant(path, "--ratio 0.01", {4}, 750000);
 }
 
+TEST(SimplifyOoc, SameBytesWithOneThread) {
+  // Deterministic for any --threads: every parallel step (gathers, patch builds, export,
+  // the finish) runs in the job's arena and must not depend on how work is split.
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  run_ok(q() + " gen " + mesh.string() + " --faces 12000 --quiet");
+  for (const char* threads : {"1", "2"})
+    run_ok(q() + " simplify " + mesh.string() + " " + (dir / (std::string("t") + threads + ".ply")).string() +
+           " --target-faces 301 --clusters 4 --in-core-faces 3000 --threads " + threads + " --quiet --scratch " +
+           dir.path().string());
+  EXPECT_TRUE(slurp(dir / "t1.ply") == slurp(dir / "t2.ply"));
+}
+
 TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
   // 120k faces need ~20 MB in the finish but would get several patches from the budget
   // rule (clusters_for); under a 64M budget the run goes in core at once
