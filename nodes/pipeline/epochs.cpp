@@ -787,6 +787,11 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t capacity = job.governor().capacity();
   const uint64_t in_core_faces =
       options.in_core_faces ? options.in_core_faces : uint64_t(0.9 * double(capacity)) / kInCoreBytesPerFace;
+  // The output is made by the in-core finish, which holds at least the target's faces:
+  // a target too large for the budget is refused now (DESIGN §3 'Bounded'), not run over
+  // it. (Streaming a large output out of core is not implemented.)
+  job.governor().require_fits("the in-core finish of " + std::to_string(st.target_faces) + " output faces",
+                              uint64_t(double(st.target_faces) * double(kInCoreBytesPerFace) / 0.9));
 
   // A mesh that fits the finish needs no partition (no sampling, clusters or planes):
   // it goes in core at once. An explicit --clusters is kept (tests force epochs so).

@@ -183,6 +183,25 @@ TEST(SimplifyOoc, BadInputExits3AndLeavesNothing) {
   EXPECT_TRUE(std::filesystem::is_empty(scratch));
 }
 
+TEST(SimplifyOoc, TargetTooLargeForTheBudgetIsRefused) {
+  // The output is made in core: 270k output faces need ~51 MB there, more than a 64M
+  // budget leaves; the run is refused (exit 4, the minimum budget named), not run over it.
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
+  const auto scratch = dir / "scratch";
+  std::filesystem::create_directories(scratch);
+  std::string out;
+  EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+                            " --ratio 0.9 --mem-budget 64M --quiet --scratch " + scratch.string(),
+                        &out),
+            4)
+      << out;
+  EXPECT_NE(out.find("the minimum budget is"), std::string::npos) << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
+  EXPECT_TRUE(std::filesystem::is_empty(scratch));
+}
+
 TEST(SimplifyOoc, FullScratchIsAResourceErrorAndLeavesNothing) {
   // A 1 MiB tmpfs is not available unprivileged; /dev/full-like failure: a scratch
   // directory on a filesystem without room is simulated by a scratch path under a
