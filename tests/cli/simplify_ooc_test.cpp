@@ -161,6 +161,23 @@ TEST(SimplifyOoc, PeakRssStaysUnderTheBudget) {
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 3000u);
 }
 
+// Runs `simplify INPUT DIR/out.ply ARGS --scratch DIR/scratch`, which must fail with
+// `exit_code` and a message containing `needle`, leaving no output and an empty scratch.
+void expect_refused(const TempDir& dir, const std::filesystem::path& input, const std::string& args, int exit_code,
+                    const std::string& needle) {
+  const auto scratch = dir / "scratch";
+  std::filesystem::create_directories(scratch);
+  std::string out;
+  EXPECT_EQ(run_command(q() + " simplify " + input.string() + " " + (dir / "out.ply").string() + " " + args +
+                            " --quiet --scratch " + scratch.string(),
+                        &out),
+            exit_code)
+      << out;
+  EXPECT_NE(out.find(needle), std::string::npos) << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
+  EXPECT_TRUE(std::filesystem::is_empty(scratch));
+}
+
 TEST(SimplifyOoc, BadInputExits3AndLeavesNothing) {
   TempDir dir;
   const auto bad = dir / "bad.ply";
@@ -170,17 +187,7 @@ TEST(SimplifyOoc, BadInputExits3AndLeavesNothing) {
          "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
     f << "short";
   }
-  const auto scratch = dir / "scratch";
-  std::filesystem::create_directories(scratch);
-  std::string out;
-  EXPECT_EQ(run_command(q() + " simplify " + bad.string() + " " + (dir / "out.ply").string() +
-                            " --ratio 0.5 --quiet --scratch " + scratch.string(),
-                        &out),
-            3)
-      << out;
-  EXPECT_NE(out.find(bad.string()), std::string::npos) << out;
-  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
-  EXPECT_TRUE(std::filesystem::is_empty(scratch));
+  expect_refused(dir, bad, "--ratio 0.5", 3, bad.string());
 }
 
 TEST(SimplifyOoc, TargetTooLargeForTheBudgetIsRefused) {
@@ -189,17 +196,7 @@ TEST(SimplifyOoc, TargetTooLargeForTheBudgetIsRefused) {
   TempDir dir;
   const auto mesh = dir / "blob.ply";
   run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
-  const auto scratch = dir / "scratch";
-  std::filesystem::create_directories(scratch);
-  std::string out;
-  EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-                            " --ratio 0.9 --mem-budget 64M --quiet --scratch " + scratch.string(),
-                        &out),
-            4)
-      << out;
-  EXPECT_NE(out.find("the minimum budget is"), std::string::npos) << out;
-  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
-  EXPECT_TRUE(std::filesystem::is_empty(scratch));
+  expect_refused(dir, mesh, "--ratio 0.9 --mem-budget 64M", 4, "the minimum budget is");
 }
 
 TEST(SimplifyOoc, FullScratchIsAResourceErrorAndLeavesNothing) {
