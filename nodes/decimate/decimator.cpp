@@ -96,6 +96,7 @@ struct PatchDecimator::Scratch {
     uint32_t other;
   };
   std::vector<Option> options;
+  std::vector<FanEdge> fan;
 };
 
 PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : params_(params) {
@@ -386,11 +387,11 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
     best_cost_[v] = 0.0;
   }
   gather_faces(v, s.faces);
-  fan_neighbors(v, s.faces, s.na);
+  fan_neighbors(v, s.faces, s.fan);
   s.options.clear();
-  for (const auto& [w, corner] : s.na) {
+  for (const auto& [w, corner, twin] : s.fan) {
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
-    const double cost = edge_cost(v, w, corner);
+    const double cost = edge_cost(v, w, corner, twin);
     if (cost == kSkipEdge) continue;
     const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
     if (key < bound) s.options.push_back({key, w});
@@ -406,40 +407,53 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   }
 }
 
-double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner) {
+double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin) {
   // The cost depends only on both endpoints' quadrics and positions, which change
-  // only at a collapse's kept vertex, whose corners collapse() resets: a cached value
-  // is the value recomputing would give, bit for bit (both ends compute the same).
+  // only at a collapse's kept vertex, whose edges' corners collapse() resets: a cached
+  // value is the value recomputing would give, bit for bit (both ends and both corners
+  // of an edge compute the same).
   std::atomic_ref<double> cached(corner_cost_[corner]);
   const double known = cached.load(std::memory_order_relaxed);
   if (!std::isnan(known)) return known;
+  if (twin != kNone) {
+    const double known_twin = std::atomic_ref<double>(corner_cost_[twin]).load(std::memory_order_relaxed);
+    if (!std::isnan(known_twin)) {
+      cached.store(known_twin, std::memory_order_relaxed);
+      return known_twin;
+    }
+  }
   const Vec3 p = edge_position(v, w);
   double cost = quadric_error(quadric_[v] + quadric_[w], p);
   if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) cost = kSkipEdge;
   cached.store(cost, std::memory_order_relaxed);
+  if (twin != kNone) std::atomic_ref<double>(corner_cost_[twin]).store(cost, std::memory_order_relaxed);
   return cost;
 }
 
 void PatchDecimator::fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces,
-                                   std::vector<std::pair<uint32_t, uint32_t>>& out) const {
+                                   std::vector<FanEdge>& out) const {
   // v is unlocked: one consistently oriented fan, so the vertex after v in each face
   // lists every neighbour once, except the first one of a border fan. Each comes with
-  // the corner whose edge (corner vertex -> next vertex) joins it to v.
+  // the corner whose edge (corner vertex -> next vertex) joins it to v, and the twin
+  // corner of the same edge in the face on its other side (w -> v), if any: both
+  // cache the edge's cost.
   out.clear();
   for (uint32_t f : faces) {
     const auto& t = fv_[f];
     const uint32_t slot = t[0] == v ? 0 : (t[1] == v ? 1 : 2);
-    out.push_back({t[(slot + 1) % 3], 3 * f + slot});
+    out.push_back({t[(slot + 1) % 3], 3 * f + slot, kNone});
   }
-  if (!(vflag_[v] & kBorder)) return;
   const size_t n = out.size();
+  const bool border = (vflag_[v] & kBorder) != 0;
   for (uint32_t f : faces) {
     const auto& t = fv_[f];
     const uint32_t slot = t[0] == v ? 2 : (t[1] == v ? 0 : 1);  // the vertex before v
     const uint32_t prev = t[slot];
-    if (std::find_if(out.begin(), out.begin() + n, [&](const auto& x) { return x.first == prev; }) ==
-        out.begin() + n)
-      out.push_back({prev, 3 * f + slot});
+    auto it = std::find_if(out.begin(), out.begin() + n, [&](const FanEdge& x) { return x.other == prev; });
+    if (it != out.begin() + n)
+      it->twin = 3 * f + slot;
+    else if (border)
+      out.push_back({prev, 3 * f + slot, kNone});
   }
 }
 
@@ -664,10 +678,11 @@ void PatchDecimator::collapse(const Candidate& c) {
   head_[r] = kNone;
   pos_[k] = p;
   quadric_[k] += quadric_[r];
-  // Every edge at k has a new cost.
+  // Every edge at k has a new cost: the corners of k (edge k -> next) and of the
+  // vertex before k (edge prev -> k). The third edge of the face keeps its cost.
   for (uint32_t corner = head_[k]; corner != kNone; corner = next_[corner]) {
-    const uint32_t f = corner / 3;
-    corner_cost_[3 * f] = corner_cost_[3 * f + 1] = corner_cost_[3 * f + 2] = kUnknownCost;
+    const uint32_t f = corner / 3, slot = corner % 3;
+    corner_cost_[corner] = corner_cost_[3 * f + (slot + 2) % 3] = kUnknownCost;
   }
   vflag_[k] |= vflag_[r] & kUntrusted;
   vflag_[r] |= kDead;

@@ -199,6 +199,11 @@ class PatchDecimator {
 
  private:
   struct Scratch;
+  // An edge v -> other of v's fan: its corner, and the corner of its twin half-edge
+  // (other -> v), or none on the border.
+  struct FanEdge {
+    uint32_t other, corner, twin;
+  };
   enum : uint8_t { kDead = 1, kLocked = 2, kUntrusted = 4, kBorder = 8, kOwned = 16 };
 
   void build_corner_chains();
@@ -207,9 +212,8 @@ class PatchDecimator {
   void compact_storage();
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only);
   void update_border(uint32_t v, Scratch& s);
-  void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces,
-                     std::vector<std::pair<uint32_t, uint32_t>>& out) const;
-  double edge_cost(uint32_t v, uint32_t w, uint32_t corner);
+  void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces, std::vector<FanEdge>& out) const;
+  double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin);
   bool collapse_valid(uint32_t a, const std::vector<uint32_t>& faces_of_a, uint32_t b, const Vec3& p,
                       Scratch& s) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
