@@ -173,7 +173,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   faces_alive_ = fv_.size();
   corner_cost_.assign(3 * fv_.size(), kUnknownCost);
 
-  build_corner_chains();
+  rebuild_adjacency(0);
   if (in.locked.empty()) lock_nonmanifold_vertices();
   release_memory(in.locked);
   if (in.quadrics.size() == nv) {
@@ -192,24 +192,39 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   for (uint8_t f : vflag_) locked_count_ += (f & kLocked) ? 1 : 0;
 }
 
-void PatchDecimator::build_corner_chains() {
-  head_.assign(pos_.size(), kNone);
-  next_.assign(fv_.size() * 3, kNone);
-  // Built backwards so each chain lists a vertex's faces in ascending face order.
-  for (size_t f = fv_.size(); f-- > 0;) {
+void PatchDecimator::rebuild_adjacency(size_t extra) {
+  // Counting sort of the live corners by vertex: each list in ascending face order.
+  const size_t nv = pos_.size();
+  adj_count_.assign(nv, 0);
+  size_t live = 0;
+  for (size_t f = 0; f < fv_.size(); ++f) {
+    if (!falive_[f]) continue;
+    for (uint32_t v : fv_[f]) ++adj_count_[v];
+    live += 3;
+  }
+  adj_begin_.resize(nv);
+  uint64_t at = 0;
+  for (size_t v = 0; v < nv; ++v) {
+    adj_begin_[v] = at;
+    at += adj_count_[v];
+    adj_count_[v] = 0;
+  }
+  release_memory(adj_);
+  // Slack for the merged lists collapses append (see apply_cut).
+  adj_.reserve(live + live / 4 + extra);
+  adj_.resize(live);
+  for (size_t f = 0; f < fv_.size(); ++f) {
     if (!falive_[f]) continue;
     for (uint32_t k = 0; k < 3; ++k) {
-      const uint32_t c = static_cast<uint32_t>(3 * f + k);
       const uint32_t v = fv_[f][k];
-      next_[c] = head_[v];
-      head_[v] = c;
+      adj_[adj_begin_[v] + adj_count_[v]++] = static_cast<uint32_t>(3 * f + k);
     }
   }
 }
 
 void PatchDecimator::gather_faces(uint32_t v, std::vector<uint32_t>& out) const {
   out.clear();
-  for (uint32_t c = head_[v]; c != kNone; c = next_[c])
+  for (uint32_t c : corners_of(v))
     if (falive_[c / 3]) out.push_back(c / 3);
 }
 
@@ -476,19 +491,18 @@ void PatchDecimator::update_border(uint32_t v, Scratch& s) {
   vflag_[v] = static_cast<uint8_t>(border ? (vflag_[v] | kBorder) : (vflag_[v] & ~kBorder));
 }
 
-void PatchDecimator::compact_chain(uint32_t v) {
-  uint32_t* link = &head_[v];
-  for (uint32_t c = head_[v]; c != kNone; c = next_[c]) {
-    if (!falive_[c / 3]) continue;
-    *link = c;
-    link = &next_[c];
-  }
-  *link = kNone;
+void PatchDecimator::compact_list(uint32_t v) {
+  uint32_t* list = adj_.data() + adj_begin_[v];
+  const uint32_t n = adj_count_[v];
+  uint32_t kept = 0;
+  for (uint32_t i = 0; i < n; ++i)
+    if (falive_[list[i] / 3]) list[kept++] = list[i];
+  adj_count_[v] = kept;
 }
 
 void PatchDecimator::compact_storage() {
   // Move live vertices and faces to the front, keeping their relative order (faces
-  // stay in ascending global id), then rebuild the corner chains.
+  // stay in ascending global id), then rebuild the corner lists.
   std::vector<uint32_t> remap(pos_.size(), kNone);
   uint32_t nv = 0;
   for (uint32_t v = 0; v < pos_.size(); ++v) {
@@ -530,7 +544,7 @@ void PatchDecimator::compact_storage() {
   falive_.assign(nf, 1);
   for (auto& t : passthrough_)
     for (auto& v : t) v = remap[v];
-  build_corner_chains();
+  rebuild_adjacency(0);
 }
 
 void PatchDecimator::prepare_round() {
@@ -542,9 +556,9 @@ void PatchDecimator::prepare_round() {
   tbb::enumerable_thread_specific<Scratch> scratch;
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
-    // Only a touched vertex can have lost a face: the others' chains are compact.
+    // Only a touched vertex can have lost a face: the others' lists are compact.
     if (!touched_[v]) return;
-    compact_chain(v);
+    compact_list(v);
     update_border(v, scratch.local());
   });
   parallel_over(dirty_list.size(), [&](size_t i) {
@@ -642,7 +656,7 @@ void PatchDecimator::untrusted_distances(int radius, std::vector<uint8_t>& dist)
   for (uint8_t d = 1; d <= radius && !frontier.empty(); ++d) {
     next.clear();
     for (uint32_t v : frontier)
-      for (uint32_t c = head_[v]; c != kNone; c = next_[c]) {
+      for (uint32_t c : corners_of(v)) {
         if (!falive_[c / 3]) continue;
         for (uint32_t u : fv_[c / 3])
           if (dist[u] > d) {
@@ -661,10 +675,10 @@ void PatchDecimator::spread_untrusted(int radius) {
     if (dist[v] <= radius) vflag_[v] |= kUntrusted;
 }
 
-void PatchDecimator::collapse(const Candidate& c) {
+void PatchDecimator::collapse(const Candidate& c, uint64_t list_at) {
   const uint32_t k = c.keep, r = c.remove;
   const Vec3 p = edge_position(k, r);
-  for (uint32_t corner = head_[r]; corner != kNone; corner = next_[corner]) {
+  for (uint32_t corner : corners_of(r)) {
     const uint32_t f = corner / 3;
     if (!falive_[f]) continue;
     if (contains(fv_[f], k))
@@ -672,15 +686,20 @@ void PatchDecimator::collapse(const Candidate& c) {
     else
       fv_[f][corner % 3] = k;
   }
-  uint32_t* link = &head_[k];
-  while (*link != kNone) link = &next_[*link];
-  *link = head_[r];
-  head_[r] = kNone;
+  // k's new list: its own corners, then r's (the removed faces too: apply_cut refreshes
+  // their vertices; the next prepare_round drops them), in the space apply_cut reserved.
+  uint32_t* list = adj_.data() + list_at;
+  const std::span<const uint32_t> own = corners_of(k), taken = corners_of(r);
+  std::copy(own.begin(), own.end(), list);
+  std::copy(taken.begin(), taken.end(), list + own.size());
+  adj_begin_[k] = list_at;
+  adj_count_[k] = static_cast<uint32_t>(own.size() + taken.size());
+  adj_count_[r] = 0;
   pos_[k] = p;
   quadric_[k] += quadric_[r];
   // Every edge at k has a new cost: the corners of k (edge k -> next) and of the
   // vertex before k (edge prev -> k). The third edge of the face keeps its cost.
-  for (uint32_t corner = head_[k]; corner != kNone; corner = next_[corner]) {
+  for (uint32_t corner : corners_of(k)) {
     const uint32_t f = corner / 3, slot = corner % 3;
     corner_cost_[corner] = corner_cost_[3 * f + (slot + 2) % 3] = kUnknownCost;
   }
@@ -706,8 +725,16 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
       if (trust_dist_[v] <= kTrustSpread) vflag_[v] |= kUntrusted;
     trust_dist_.clear();
   }
-  // Candidates are >= 2 rings apart: their collapses touch disjoint faces and chains.
-  parallel_over(chosen.size(), [&](size_t i) { collapse(chosen[i]); }, 64);
+  // Each collapse writes the kept vertex's merged corner list to its own slice of the
+  // list pool, placed by a prefix sum (so the pool never reallocates mid-loop).
+  std::vector<uint64_t> list_at(chosen.size() + 1, 0);
+  for (size_t i = 0; i < chosen.size(); ++i)
+    list_at[i + 1] = list_at[i] + adj_count_[chosen[i].keep] + adj_count_[chosen[i].remove];
+  if (adj_.size() + list_at.back() > adj_.capacity()) rebuild_adjacency(list_at.back());
+  const uint64_t pool_end = adj_.size();
+  adj_.resize(pool_end + list_at.back());
+  // Candidates are >= 2 rings apart: their collapses touch disjoint faces and lists.
+  parallel_over(chosen.size(), [&](size_t i) { collapse(chosen[i], pool_end + list_at[i]); }, 64);
   uint64_t removed = 0;
   for (const auto& c : chosen) removed += c.faces_removed;
   faces_alive_ -= removed;
@@ -730,14 +757,14 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
     // them to k any more. Second ring: only edges to touched vertices changed. Whoever
     // sets a vertex's touched flag marks its ring (the mesh is final by now), so a
     // vertex seen touched already needs no second walk.
-    for (uint32_t c1 = head_[k]; c1 != kNone; c1 = next_[c1]) {
+    for (uint32_t c1 : corners_of(k)) {
       for (uint32_t u : fv_[c1 / 3]) {
         if (u == k) continue;
         std::atomic_ref<uint8_t> touched(touched_[u]);
         if (touched.load(std::memory_order_relaxed)) continue;
         touched.store(1, std::memory_order_relaxed);
         set(dirty_[u]);
-        for (uint32_t c2 = head_[u]; c2 != kNone; c2 = next_[c2]) {
+        for (uint32_t c2 : corners_of(u)) {
           if (!falive_[c2 / 3]) continue;
           for (uint32_t x : fv_[c2 / 3]) set(dirty_[x]);
         }
@@ -778,7 +805,7 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     out.quadrics.push_back(quadric_[v]);
     out.locked.push_back((vflag_[v] & kLocked) ? 1 : 0);
     uint32_t degree = 0;
-    for (uint32_t c = head_[v]; c != kNone; c = next_[c]) degree += falive_[c / 3];
+    for (uint32_t c : corners_of(v)) degree += falive_[c / 3];
     out.degrees.push_back(degree);
     out.trusted.push_back((vflag_[v] & kUntrusted) ? 0 : 1);
     out.untrusted_vertices += (vflag_[v] & kUntrusted) ? 1 : 0;

@@ -206,7 +206,11 @@ class PatchDecimator {
   };
   enum : uint8_t { kDead = 1, kLocked = 2, kUntrusted = 4, kBorder = 8, kOwned = 16 };
 
-  void build_corner_chains();
+  // Rebuilds the corner lists from the live faces, with room for `extra` more entries.
+  void rebuild_adjacency(size_t extra);
+  std::span<const uint32_t> corners_of(uint32_t v) const {
+    return {adj_.data() + adj_begin_[v], adj_count_[v]};
+  }
   void lock_nonmanifold_vertices();
   void compute_quadrics();
   void compact_storage();
@@ -219,8 +223,8 @@ class PatchDecimator {
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
   EdgeKey lme_key(uint32_t v) const;
-  void collapse(const Candidate& c);
-  void compact_chain(uint32_t v);
+  void collapse(const Candidate& c, uint64_t list_at);
+  void compact_list(uint32_t v);
   // Rings (capped at `radius` + 1) from the untrusted set, in the current mesh.
   void untrusted_distances(int radius, std::vector<uint8_t>& dist) const;
   void spread_untrusted(int radius);
@@ -233,7 +237,12 @@ class PatchDecimator {
   std::vector<uint8_t> vflag_;
   std::vector<uint8_t> dirty_;       // best edge may have changed (a neighbour's faces did)
   std::vector<uint8_t> touched_;     // the vertex's own faces changed: full refresh
-  std::vector<uint32_t> head_;       // first corner of the vertex's chain
+  // Corner lists (corner c = 3 * face + slot), one contiguous slice of adj_ per vertex.
+  // A collapse appends the kept vertex's merged list at the end of the pool; dead faces
+  // stay listed until prepare_round compacts the touched vertices' lists.
+  std::vector<uint64_t> adj_begin_;
+  std::vector<uint32_t> adj_count_;
+  std::vector<uint32_t> adj_;
   std::vector<uint32_t> best_;       // other endpoint of best edge, or kNone
   std::vector<double> best_cost_;
   std::vector<uint32_t> partner_;    // LME partner, or kNone (round scratch)
@@ -241,7 +250,6 @@ class PatchDecimator {
   std::vector<std::array<uint32_t, 3>> fv_;
   std::vector<uint64_t> fgid_;
   std::vector<uint8_t> falive_;
-  std::vector<uint32_t> next_;       // next corner of the same vertex
   std::vector<double> corner_cost_;  // cost of the edge (corner's vertex, next one); NaN: unknown
   uint64_t faces_alive_ = 0;
   // faces with a repeated vertex: passed through unchanged
