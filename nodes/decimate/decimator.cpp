@@ -323,38 +323,47 @@ EdgeKey PatchDecimator::lme_key(uint32_t v) const {
   return {best_cost_[v], std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
 }
 
-bool PatchDecimator::collapse_valid(uint32_t a, const std::vector<uint32_t>& faces_of_a, uint32_t b,
+bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, uint32_t b,
                                     const Vec3& p, Scratch& s) const {
   // a and b are unlocked, hence manifold: every edge at them has one or two faces.
-  const std::vector<uint32_t>& fa = faces_of_a;
-  gather_faces(b, s.fb);
+  // Called in prepare_round, when every list is compact (live faces only).
+  const std::span<const uint32_t> corners_b = corners_of(b);
   uint32_t opposite[2];
   int shared = 0;
-  for (uint32_t f : fa) {
-    const auto& t = fv_[f];
+  for (uint32_t c : corners_a) {
+    const auto& t = fv_[c / 3];
     if (!contains(t, b)) continue;
     if (shared == 2) return false;  // non-manifold edge
     opposite[shared++] = t[0] != a && t[0] != b ? t[0] : (t[1] != a && t[1] != b ? t[1] : t[2]);
   }
   if (shared == 0) return false;
   if (shared == 2 && opposite[0] == opposite[1]) return false;
-  if (fa.size() + s.fb.size() == 2u * shared) return false;  // would erase a component
+  if (corners_a.size() + corners_b.size() == 2u * shared) return false;  // would erase a component
   // An interior edge joining two border vertices would pinch the surface.
   if (shared == 2 && (vflag_[a] & kBorder) && (vflag_[b] & kBorder)) return false;
   // Link condition: no common neighbour besides the opposite vertices...
-  for (uint32_t fb : s.fb) {
-    for (uint32_t x : fv_[fb]) {
-      if (x == a || x == b || x == opposite[0] || (shared == 2 && x == opposite[1])) continue;
-      for (uint32_t fa : fa)
-        if (contains(fv_[fa], x)) return false;
+  std::vector<uint32_t>& around_a = s.others;
+  around_a.clear();
+  for (uint32_t c : corners_a) {
+    const auto& t = fv_[c / 3];
+    const uint32_t slot = c % 3;
+    around_a.push_back(t[(slot + 1) % 3]);
+    around_a.push_back(t[(slot + 2) % 3]);
+  }
+  for (uint32_t c : corners_b) {
+    const auto& t = fv_[c / 3];
+    const uint32_t slot = c % 3;
+    for (uint32_t x : {t[(slot + 1) % 3], t[(slot + 2) % 3]}) {
+      if (x == a || x == opposite[0] || (shared == 2 && x == opposite[1])) continue;
+      if (std::find(around_a.begin(), around_a.end(), x) != around_a.end()) return false;
     }
   }
   // ...and the links of a and b share no edge (a tetrahedron-like pocket).
   if (shared == 2) {
     const uint32_t c = opposite[0], d = opposite[1];
     bool in_a = false, in_b = false;
-    for (uint32_t f : fa) in_a |= contains(fv_[f], c) && contains(fv_[f], d);
-    for (uint32_t f : s.fb) in_b |= contains(fv_[f], c) && contains(fv_[f], d);
+    for (uint32_t corner : corners_a) in_a |= contains(fv_[corner / 3], c) && contains(fv_[corner / 3], d);
+    for (uint32_t corner : corners_b) in_b |= contains(fv_[corner / 3], c) && contains(fv_[corner / 3], d);
     if (in_a && in_b) return false;
   }
   // Geometry: no face may flip or become (more) degenerate.
@@ -377,10 +386,10 @@ bool PatchDecimator::collapse_valid(uint32_t a, const std::vector<uint32_t>& fac
     }
     return true;
   };
-  for (uint32_t f : fa)
-    if (!contains(fv_[f], b) && !face_ok(f, a)) return false;
-  for (uint32_t f : s.fb)
-    if (!contains(fv_[f], a) && !face_ok(f, b)) return false;
+  for (uint32_t c : corners_a)
+    if (!contains(fv_[c / 3], b) && !face_ok(c / 3, a)) return false;
+  for (uint32_t c : corners_b)
+    if (!contains(fv_[c / 3], a) && !face_ok(c / 3, b)) return false;
   return true;
 }
 
@@ -401,8 +410,9 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
     best_[v] = kNone;
     best_cost_[v] = 0.0;
   }
-  gather_faces(v, s.faces);
-  fan_neighbors(v, s.faces, s.fan);
+  // prepare_round compacted every list that lost a face: all are live here.
+  const std::span<const uint32_t> corners = corners_of(v);
+  fan_neighbors(v, corners, s.fan);
   s.options.clear();
   for (const auto& [w, corner, twin] : s.fan) {
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
@@ -414,7 +424,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   std::sort(s.options.begin(), s.options.end(),
             [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
   for (const auto& o : s.options) {
-    if (collapse_valid(v, s.faces, o.other, edge_position(v, o.other), s)) {
+    if (collapse_valid(v, corners, o.other, edge_position(v, o.other), s)) {
       best_[v] = o.other;
       best_cost_[v] = o.key.cost;
       return;
@@ -445,7 +455,7 @@ double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32
   return cost;
 }
 
-void PatchDecimator::fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces,
+void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners,
                                    std::vector<FanEdge>& out) const {
   // v is unlocked: one consistently oriented fan, so the vertex after v in each face
   // lists every neighbour once, except the first one of a border fan. Each comes with
@@ -453,17 +463,12 @@ void PatchDecimator::fan_neighbors(uint32_t v, const std::vector<uint32_t>& face
   // corner of the same edge in the face on its other side (w -> v), if any: both
   // cache the edge's cost.
   out.clear();
-  for (uint32_t f : faces) {
-    const auto& t = fv_[f];
-    const uint32_t slot = t[0] == v ? 0 : (t[1] == v ? 1 : 2);
-    out.push_back({t[(slot + 1) % 3], 3 * f + slot, kNone});
-  }
+  for (uint32_t c : corners) out.push_back({fv_[c / 3][(c % 3 + 1) % 3], c, kNone});
   const size_t n = out.size();
   const bool border = (vflag_[v] & kBorder) != 0;
-  for (uint32_t f : faces) {
-    const auto& t = fv_[f];
-    const uint32_t slot = t[0] == v ? 2 : (t[1] == v ? 0 : 1);  // the vertex before v
-    const uint32_t prev = t[slot];
+  for (uint32_t c : corners) {
+    const uint32_t f = c / 3, slot = (c % 3 + 2) % 3;  // the vertex before v
+    const uint32_t prev = fv_[f][slot];
     auto it = std::find_if(out.begin(), out.begin() + n, [&](const FanEdge& x) { return x.other == prev; });
     if (it != out.begin() + n)
       it->twin = 3 * f + slot;
@@ -475,17 +480,13 @@ void PatchDecimator::fan_neighbors(uint32_t v, const std::vector<uint32_t>& face
 void PatchDecimator::update_border(uint32_t v, Scratch& s) {
   if (vflag_[v] & (kDead | kLocked)) return;
   // v is unlocked (one consistently oriented fan): it is on the border iff the vertex
-  // before v in some face is not the vertex after v in any face.
-  gather_faces(v, s.faces);
+  // before v in some face is not the vertex after v in any face. v's list is compact.
+  const std::span<const uint32_t> corners = corners_of(v);
   s.others.clear();
-  for (uint32_t f : s.faces) {
-    const auto& t = fv_[f];
-    s.others.push_back(t[0] == v ? t[1] : (t[1] == v ? t[2] : t[0]));
-  }
+  for (uint32_t c : corners) s.others.push_back(fv_[c / 3][(c % 3 + 1) % 3]);
   bool border = false;
-  for (uint32_t f : s.faces) {
-    const auto& t = fv_[f];
-    const uint32_t prev = t[0] == v ? t[2] : (t[1] == v ? t[0] : t[1]);
+  for (uint32_t c : corners) {
+    const uint32_t prev = fv_[c / 3][(c % 3 + 2) % 3];
     border |= std::find(s.others.begin(), s.others.end(), prev) == s.others.end();
   }
   vflag_[v] = static_cast<uint8_t>(border ? (vflag_[v] | kBorder) : (vflag_[v] & ~kBorder));
@@ -577,11 +578,10 @@ void PatchDecimator::prepare_round() {
     const uint32_t w = partner_[v];
     if (w == kNone || vgid_[v] > vgid_[w]) return;
     const EdgeKey key = lme_key(v);
-    Scratch& s = scratch.local();
     uint32_t shared = 0;
     for (uint32_t end : {v, w}) {
-      gather_faces(end, s.faces);
-      for (uint32_t f : s.faces) {
+      for (uint32_t c : corners_of(end)) {
+        const uint32_t f = c / 3;
         if (end == v && contains(fv_[f], w)) ++shared;
         for (uint32_t u : fv_[f]) {
           if (u == v || u == w || partner_[u] == kNone) continue;

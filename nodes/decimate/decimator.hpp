@@ -216,9 +216,9 @@ class PatchDecimator {
   void compact_storage();
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only);
   void update_border(uint32_t v, Scratch& s);
-  void fan_neighbors(uint32_t v, const std::vector<uint32_t>& faces, std::vector<FanEdge>& out) const;
+  void fan_neighbors(uint32_t v, std::span<const uint32_t> corners, std::vector<FanEdge>& out) const;
   double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin);
-  bool collapse_valid(uint32_t a, const std::vector<uint32_t>& faces_of_a, uint32_t b, const Vec3& p,
+  bool collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, uint32_t b, const Vec3& p,
                       Scratch& s) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
