@@ -19,6 +19,8 @@ constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 // corner_cost_ values: not computed yet / the edge has no finite cost or position.
 constexpr double kUnknownCost = std::numeric_limits<double>::quiet_NaN();
 constexpr double kSkipEdge = std::numeric_limits<double>::infinity();
+// dirty_ value of a vertex whose refresh a round with a known cut skipped.
+constexpr uint8_t kDirtyStale = 2;
 
 Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
 Vec3 cross(const Vec3& a, const Vec3& b) {
@@ -393,7 +395,7 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
   return true;
 }
 
-void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only) {
+void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut) {
   if (vflag_[v] & (kDead | kLocked)) {
     best_[v] = kNone;
     return;
@@ -423,6 +425,13 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   }
   std::sort(s.options.begin(), s.options.end(),
             [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
+  if (cut && !near_touched_only && !s.options.empty() && *cut < s.options.front().key) {
+    // Every edge at v is above the round's known cut, so v's best edge is too: it can
+    // neither be collapsed nor block a candidate this round. Left stale (no best, so
+    // no LME) and refreshed in full by a later round.
+    dirty_[v] = kDirtyStale;
+    return;
+  }
   for (const auto& o : s.options) {
     if (collapse_valid(v, corners, o.other, edge_position(v, o.other), s)) {
       best_[v] = o.other;
@@ -548,7 +557,11 @@ void PatchDecimator::compact_storage() {
   rebuild_adjacency(0);
 }
 
-void PatchDecimator::prepare_round() {
+void PatchDecimator::prepare_round() { prepare(nullptr); }
+
+void PatchDecimator::prepare_round(const RoundCut& cut) { prepare(&cut.key); }
+
+void PatchDecimator::prepare(const EdgeKey* cut) {
   if (fv_.size() > 4096 && faces_alive_ * 2 < fv_.size()) compact_storage();
   const size_t nv = pos_.size();
   std::vector<uint32_t> dirty_list;
@@ -562,11 +575,31 @@ void PatchDecimator::prepare_round() {
     compact_list(v);
     update_border(v, scratch.local());
   });
+  // A stale vertex was skipped by a round with a cut >= stale_floor_ because all its
+  // edges cost more; while untouched its edge costs stay, so under a cut <= that
+  // floor it would be skipped again.
+  const bool keep_stale = cut && has_stale_ && !(stale_floor_ < *cut);
+  std::atomic<bool> deferred{false};
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
-    refresh_best(v, scratch.local(), !touched_[v]);
+    // A stale vertex has no cached best.
+    const bool stale = dirty_[v] == kDirtyStale;
+    if (stale && keep_stale && !touched_[v]) return;
+    dirty_[v] = 1;
+    refresh_best(v, scratch.local(), !touched_[v] && !stale, cut);
+    if (dirty_[v] == kDirtyStale && !deferred.load(std::memory_order_relaxed))
+      deferred.store(true, std::memory_order_relaxed);
   }, 64);
-  for (uint32_t v : dirty_list) dirty_[v] = touched_[v] = 0;
+  if (!cut) {
+    has_stale_ = false;  // every stale vertex was refreshed
+  } else if (deferred.load()) {
+    stale_floor_ = keep_stale || !has_stale_ ? *cut : std::min(stale_floor_, *cut);
+    has_stale_ = true;
+  }
+  for (uint32_t v : dirty_list) {
+    if (dirty_[v] != kDirtyStale) dirty_[v] = 0;
+    touched_[v] = 0;
+  }
   parallel_over(nv, [&](size_t v) {
     const uint32_t w = best_[v];
     partner_[v] = (w != kNone && best_[w] == v) ? w : kNone;
@@ -578,6 +611,7 @@ void PatchDecimator::prepare_round() {
     const uint32_t w = partner_[v];
     if (w == kNone || vgid_[v] > vgid_[w]) return;
     const EdgeKey key = lme_key(v);
+    if (cut && *cut < key) return;  // not collapsed this round, whatever its status
     uint32_t shared = 0;
     for (uint32_t end : {v, w}) {
       for (uint32_t c : corners_of(end)) {

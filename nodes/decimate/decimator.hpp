@@ -171,6 +171,13 @@ class PatchDecimator {
   PatchDecimator(PatchInput input, const DecimateParams& params);
 
   void prepare_round();
+  // prepare_round for a round whose cut is known in advance (the blind rounds of an
+  // epoch): candidates() then holds exactly prepare_round's candidates with key <=
+  // cut.key (so apply_cut(cut) collapses the same edges), but candidates above the
+  // cut may be missing, so summarize() / owned_candidates() mean nothing after it.
+  // It skips the validity checks of vertices whose every edge costs more than the cut
+  // (they are refreshed in full by the next round that needs them).
+  void prepare_round(const RoundCut& cut);
   RoundSummary summarize() const;
   // Owned candidates of the prepared round, sorted by key.
   // Every candidate of the prepared round (owned or not, exact or not), sorted by key.
@@ -214,7 +221,8 @@ class PatchDecimator {
   void lock_nonmanifold_vertices();
   void compute_quadrics();
   void compact_storage();
-  void refresh_best(uint32_t v, Scratch& s, bool near_touched_only);
+  void prepare(const EdgeKey* cut);
+  void refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut);
   void update_border(uint32_t v, Scratch& s);
   void fan_neighbors(uint32_t v, std::span<const uint32_t> corners, std::vector<FanEdge>& out) const;
   double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin);
@@ -235,7 +243,10 @@ class PatchDecimator {
   std::vector<uint64_t> vgid_;
   std::vector<Quadric> quadric_;
   std::vector<uint8_t> vflag_;
-  std::vector<uint8_t> dirty_;       // best edge may have changed (a neighbour's faces did)
+  std::vector<uint8_t> dirty_;       // best edge may have changed (a neighbour's faces did);
+                                     // 2: stale (skipped by a round with a known cut)
+  bool has_stale_ = false;           // some vertex is stale, all with edges above:
+  EdgeKey stale_floor_;              // (the smallest cut that skipped one)
   std::vector<uint8_t> touched_;     // the vertex's own faces changed: full refresh
   // Corner lists (corner c = 3 * face + slot), one contiguous slice of adj_ per vertex.
   // A collapse appends the kept vertex's merged list at the end of the pool; dead faces

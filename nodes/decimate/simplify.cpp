@@ -60,7 +60,7 @@ EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
     // The epoch's rounds run blind, as every out-of-core patch does: no early exit.
     round(plan.cut);
     for (uint32_t r = 1; r < plan.rounds; ++r) {
-      decimator.prepare_round();
+      decimator.prepare_round(plan.cut);
       round(plan.cut);
     }
   }
