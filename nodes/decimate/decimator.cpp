@@ -47,6 +47,13 @@ bool contains(const std::array<uint32_t, 3>& f, uint32_t v) {
   return f[0] == v || f[1] == v || f[2] == v;
 }
 
+// Sets a flag shared between threads of a parallel loop to 1, unless it is non-zero
+// (flags are only ever raised concurrently: relaxed stores, no read-modify-write).
+void raise_flag(uint8_t& flag) {
+  std::atomic_ref<uint8_t> f(flag);
+  if (!f.load(std::memory_order_relaxed)) f.store(1, std::memory_order_relaxed);
+}
+
 template <class F>
 void parallel_over(size_t n, F&& body, size_t grain = 1024) {
   tbb::parallel_for(tbb::blocked_range<size_t>(0, n, grain),
@@ -564,17 +571,23 @@ void PatchDecimator::prepare_round(const RoundCut& cut) { prepare(&cut.key); }
 void PatchDecimator::prepare(const EdgeKey* cut) {
   if (fv_.size() > 4096 && faces_alive_ * 2 < fv_.size()) compact_storage();
   const size_t nv = pos_.size();
-  std::vector<uint32_t> dirty_list;
+  std::vector<uint32_t> touched_list, dirty_list;
   for (uint32_t v = 0; v < nv; ++v)
-    if (dirty_[v]) dirty_list.push_back(v);
+    if (touched_[v]) touched_list.push_back(v);
   tbb::enumerable_thread_specific<Scratch> scratch;
-  parallel_over(dirty_list.size(), [&](size_t i) {
-    const uint32_t v = dirty_list[i];
-    // Only a touched vertex can have lost a face: the others' lists are compact.
-    if (!touched_[v]) return;
+  // Touched vertices (the last collapses' first rings; only they can have lost a face):
+  // compact their lists, update their border flags, and mark them and their second
+  // ring dirty (edges to a touched vertex may have changed validity).
+  parallel_over(touched_list.size(), [&](size_t i) {
+    const uint32_t v = touched_list[i];
     compact_list(v);
     update_border(v, scratch.local());
+    raise_flag(dirty_[v]);
+    for (uint32_t c : corners_of(v))
+      for (uint32_t x : fv_[c / 3]) raise_flag(dirty_[x]);
   });
+  for (uint32_t v = 0; v < nv; ++v)
+    if (dirty_[v]) dirty_list.push_back(v);
   // A stale vertex was skipped by a round with a cut >= stale_floor_ because all its
   // edges cost more; while untouched its edge costs stay, so under a cut <= that
   // floor it would be skipped again.
@@ -777,33 +790,14 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
     for (uint8_t f : vflag_) untrusted_count_ += (f & (kUntrusted | kDead)) == kUntrusted;
   }
   // Everything whose best edge may have changed lies within 2 rings of a kept vertex.
+  // Here the first ring becomes touched (its faces changed), including the vertices of
+  // the faces this collapse removed, so they are refreshed even when no live face joins
+  // them to k any more; the next prepare marks the second ring from the touched ones.
   parallel_over(chosen.size(), [&](size_t i) {
     const uint32_t k = chosen[i].keep;
-    // Flags are only ever set to 1 here (plain relaxed stores, no read-modify-write).
-    auto set = [](uint8_t& flag) {
-      std::atomic_ref<uint8_t> f(flag);
-      if (!f.load(std::memory_order_relaxed)) f.store(1, std::memory_order_relaxed);
-    };
-    set(touched_[k]);
-    set(dirty_[k]);
-    // First ring (touched: their faces changed): include the faces this collapse
-    // removed, so their opposite vertices are refreshed even when no live face joins
-    // them to k any more. Second ring: only edges to touched vertices changed. Whoever
-    // sets a vertex's touched flag marks its ring (the mesh is final by now), so a
-    // vertex seen touched already needs no second walk.
-    for (uint32_t c1 : corners_of(k)) {
-      for (uint32_t u : fv_[c1 / 3]) {
-        if (u == k) continue;
-        std::atomic_ref<uint8_t> touched(touched_[u]);
-        if (touched.load(std::memory_order_relaxed)) continue;
-        touched.store(1, std::memory_order_relaxed);
-        set(dirty_[u]);
-        for (uint32_t c2 : corners_of(u)) {
-          if (!falive_[c2 / 3]) continue;
-          for (uint32_t x : fv_[c2 / 3]) set(dirty_[x]);
-        }
-      }
-    }
+    raise_flag(touched_[k]);
+    for (uint32_t c1 : corners_of(k))
+      for (uint32_t u : fv_[c1 / 3]) raise_flag(touched_[u]);
   }, 64);
   return removed;
 }
