@@ -103,6 +103,8 @@ struct PatchDecimator::Scratch {
   struct Option {
     EdgeKey key;
     uint32_t other;
+    bool has_position;  // the cost was computed just now: `position` is the edge's
+    Vec3 position;
   };
   std::vector<Option> options;
   std::vector<FanEdge> fan;
@@ -425,10 +427,12 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   s.options.clear();
   for (const auto& [w, corner, twin] : s.fan) {
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
-    const double cost = edge_cost(v, w, corner, twin);
+    Vec3 position;
+    bool has_position = false;
+    const double cost = edge_cost(v, w, corner, twin, position, has_position);
     if (cost == kSkipEdge) continue;
     const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
-    if (key < bound) s.options.push_back({key, w});
+    if (key < bound) s.options.push_back({key, w, has_position, position});
   }
   std::sort(s.options.begin(), s.options.end(),
             [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
@@ -440,7 +444,9 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
     return;
   }
   for (const auto& o : s.options) {
-    if (collapse_valid(v, corners, o.other, edge_position(v, o.other), s)) {
+    // The same function of the same inputs as edge_cost's position: the same bits.
+    const Vec3 p = o.has_position ? o.position : edge_position(v, o.other);
+    if (collapse_valid(v, corners, o.other, p, s)) {
       best_[v] = o.other;
       best_cost_[v] = o.key.cost;
       return;
@@ -448,7 +454,8 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   }
 }
 
-double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin) {
+double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin,
+                                 Vec3& position, bool& has_position) {
   // The cost depends only on both endpoints' quadrics and positions, which change
   // only at a collapse's kept vertex, whose edges' corners collapse() resets: a cached
   // value is the value recomputing would give, bit for bit (both ends and both corners
@@ -464,6 +471,8 @@ double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32
     }
   }
   const Vec3 p = edge_position(v, w);
+  position = p;
+  has_position = true;
   double cost = quadric_error(quadric_[v] + quadric_[w], p);
   if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) cost = kSkipEdge;
   cached.store(cost, std::memory_order_relaxed);

@@ -225,7 +225,9 @@ class PatchDecimator {
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut);
   void update_border(uint32_t v, Scratch& s);
   void fan_neighbors(uint32_t v, std::span<const uint32_t> corners, std::vector<FanEdge>& out) const;
-  double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin);
+  // The cached cost of edge (v, w); when it is computed here, also its position.
+  double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin, Vec3& position,
+                   bool& has_position);
   bool collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, uint32_t b, const Vec3& p,
                       Scratch& s) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
