@@ -627,10 +627,10 @@ PatchInput build_whole_patch(Gathered&& g) {
 
 void run_patch_plan(PatchDecimator& d, const PatchPlan& plan) {
   if (plan.kind == PatchPlan::Kind::summary_only) return;
-  d.prepare_round();
-  d.apply_cut(plan.cut);
-  for (uint32_t r = 1; r < plan.rounds; ++r) {
-    d.prepare_round();
+  // The cut is known, so every round may skip the vertices whose edges all lie above
+  // it (the summary after the epoch refreshes them with a plain prepare_round).
+  for (uint32_t r = 0; r < plan.rounds; ++r) {
+    d.prepare_round(plan.cut);
     d.apply_cut(plan.cut);
   }
 }
