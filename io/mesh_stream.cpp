@@ -51,4 +51,11 @@ std::unique_ptr<MeshWriter> open_mesh_writer(const std::filesystem::path& path,
                   : open_ply_writer(path, vertex_count, triangle_count, options, level);
 }
 
+void MeshWriter::write_encoded_vertices(const char*, size_t) {
+  throw Error(ErrorKind::internal, "mesh writer misuse: pre-encoded vertices for a format without them");
+}
+void MeshWriter::write_encoded_triangles(const char*, size_t, uint64_t) {
+  throw Error(ErrorKind::internal, "mesh writer misuse: pre-encoded triangles for a format without them");
+}
+
 }  // namespace qemflow::io

@@ -83,6 +83,15 @@ class MeshWriter {
   virtual void write_triangles(const Triangle* triangles, size_t count) = 0;
   virtual void commit() = 0;
   virtual uint64_t bytes_written() const = 0;
+  // Pre-encoded body bytes, for callers that encode on their own threads so that
+  // the writing thread only moves bytes: `count` records made by io/ply_bulk.hpp's
+  // encode_ply_vertices (float or double as ply_vertex_double() says) or
+  // encode_ply_triangles (max_index: the largest index among them). Binary PLY
+  // writers only: ply_vertex_double() is nullopt for the others, whose
+  // write_encoded_* throw Error(internal). Same counts and checks as write_*.
+  virtual std::optional<bool> ply_vertex_double() const { return std::nullopt; }
+  virtual void write_encoded_vertices(const char* bytes, size_t count);
+  virtual void write_encoded_triangles(const char* bytes, size_t count, uint64_t max_index);
 };
 
 std::unique_ptr<MeshWriter> open_mesh_writer(const std::filesystem::path& path,

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "io/byte_sink.hpp"
+#include "io/ply_bulk.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::io {
@@ -93,19 +94,33 @@ class PlyWriter final : public CountingWriter {
     for (size_t done = 0; done < count;) {
       size_t n = std::min(count - done, per_flush);
       char* out = sink_.reserve(n * record);
-      if (double_precision_) {
-        std::memcpy(out, points + done, n * record);
-      } else {
-        for (size_t i = 0; i < n; ++i, out += 12) {
-          const Point& p = points[done + i];
-          float xyz[3] = {static_cast<float>(p[0]), static_cast<float>(p[1]), static_cast<float>(p[2])};
-          std::memcpy(out, xyz, 12);
-        }
-      }
+      encode_ply_vertices(points + done, n, double_precision_, out);
       sink_.advance(n * record);
       done += n;
     }
     vertices_written_ += count;
+  }
+
+  std::optional<bool> ply_vertex_double() const override { return double_precision_; }
+
+  void write_encoded_vertices(const char* bytes, size_t count) override {
+    admit_vertices(count);
+    sink_.write(bytes, count * (double_precision_ ? 24 : 12));
+    vertices_written_ += count;
+  }
+
+  void write_encoded_triangles(const char* bytes, size_t count, uint64_t max_index) override {
+    if (vertices_written_ != vertex_count_) misuse("PLY triangles written before all vertices");
+    if (count > triangle_count_ - triangles_written_) {
+      misuse("more than the declared " + std::to_string(triangle_count_) + " triangles");
+    }
+    if (count > 0 && max_index >= vertex_count_) {
+      misuse("triangles " + std::to_string(triangles_written_) + ".." + std::to_string(triangles_written_ + count - 1) +
+             " have vertex index " + std::to_string(max_index) + " but only " + std::to_string(vertex_count_) +
+             " vertices are available");
+    }
+    sink_.write(bytes, count * 13);
+    triangles_written_ += count;
   }
 
   void write_triangles(const Triangle* triangles, size_t count) override {
@@ -115,13 +130,8 @@ class PlyWriter final : public CountingWriter {
     for (size_t done = 0; done < count;) {
       size_t n = std::min(count - done, per_flush);
       char* out = sink_.reserve(n * 13);
-      for (size_t i = 0; i < n; ++i, out += 13) {
-        const Triangle& t = triangles[done + i];
-        uint32_t abc[3] = {static_cast<uint32_t>(t[0]), static_cast<uint32_t>(t[1]),
-                           static_cast<uint32_t>(t[2])};
-        out[0] = 3;
-        std::memcpy(out + 1, abc, 12);
-      }
+      uint64_t largest = 0;  // checked above
+      encode_ply_triangles(triangles + done, n, out, largest);
       sink_.advance(n * 13);
       done += n;
     }

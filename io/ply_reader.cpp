@@ -9,6 +9,7 @@
 #include <string_view>
 
 #include "io/byte_source.hpp"
+#include "io/ply_binary.hpp"
 #include "io/ply_header.hpp"
 #include "util/error.hpp"
 
@@ -16,62 +17,9 @@ namespace qemflow::io {
 
 namespace {
 
-// A list may not make one record longer than this; a larger one is corrupt input
-// rather than a polygon anyone meant to write.
-constexpr size_t max_record_bytes = size_t{1} << 26;
-
-template <bool Swap>
-inline uint16_t load16(const char* p) {
-  uint16_t v;
-  std::memcpy(&v, p, 2);
-  if constexpr (Swap) v = __builtin_bswap16(v);
-  return v;
-}
-template <bool Swap>
-inline uint32_t load32(const char* p) {
-  uint32_t v;
-  std::memcpy(&v, p, 4);
-  if constexpr (Swap) v = __builtin_bswap32(v);
-  return v;
-}
-template <bool Swap>
-inline uint64_t load64(const char* p) {
-  uint64_t v;
-  std::memcpy(&v, p, 8);
-  if constexpr (Swap) v = __builtin_bswap64(v);
-  return v;
-}
-
-// Integer types only (the header checks that counts and indices are integers).
-template <bool Swap>
-inline int64_t load_integer(PlyType type, const char* p) {
-  switch (type) {
-    case PlyType::int8: return static_cast<int8_t>(*p);
-    case PlyType::uint8: return static_cast<uint8_t>(*p);
-    case PlyType::int16: return static_cast<int16_t>(load16<Swap>(p));
-    case PlyType::uint16: return load16<Swap>(p);
-    case PlyType::int32: return static_cast<int32_t>(load32<Swap>(p));
-    case PlyType::uint32: return load32<Swap>(p);
-    default: return 0;
-  }
-}
-
-template <bool Swap>
-inline double load_real(PlyType type, const char* p) {
-  switch (type) {
-    case PlyType::float32: return std::bit_cast<float>(load32<Swap>(p));
-    case PlyType::float64: return std::bit_cast<double>(load64<Swap>(p));
-    default: return static_cast<double>(load_integer<Swap>(type, p));
-  }
-}
+using namespace ply_binary;
 
 inline bool is_space(char c) { return c == ' ' || c == '\n' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
-
-bool all_finite(const Point& p) {
-  // Non-finite values give NaN here (inf - inf); finite ones give exactly 0.
-  double zero = (p[0] - p[0]) + (p[1] - p[1]) + (p[2] - p[2]);
-  return zero == 0;
-}
 
 class PlyReader final : public MeshReader {
  public:
@@ -177,43 +125,15 @@ class PlyReader final : public MeshReader {
     }
   }
 
-  // Length of the binary record at p if all of it is within `available`; otherwise 0
-  // and `needed` is how many bytes are known to be required.
   template <bool Swap>
   size_t binary_record_length(const PlyElement& element, const char* p, size_t available,
                               size_t& needed, size_t* list_offset = nullptr,
                               size_t list_property = SIZE_MAX) {
-    size_t position = 0;
-    for (size_t i = 0; i < element.properties.size(); ++i) {
-      const PlyProperty& property = element.properties[i];
-      if (!property.is_list) {
-        position += size_of(property.type);
-        continue;
-      }
-      size_t count_size = size_of(property.count_type);
-      if (position + count_size > available) {
-        needed = position + count_size;
-        return 0;
-      }
-      if (i == list_property) *list_offset = position;
-      int64_t count = load_integer<Swap>(property.count_type, p + position);
-      if (count < 0) {
-        throw_bad_input(name(), byte_place(source_.offset() + (p - source_.data())),
-                        element.name + " " + std::to_string(done_) + " has a negative list count " +
-                            std::to_string(count));
-      }
-      position += count_size + static_cast<size_t>(count) * size_of(property.type);
-      if (position > max_record_bytes) {
-        throw_bad_input(name(), byte_place(source_.offset() + (p - source_.data())),
-                        element.name + " " + std::to_string(done_) + " has an implausible list of " +
-                            std::to_string(count) + " items");
-      }
-    }
-    if (position > available) {
-      needed = position;
-      return 0;
-    }
-    return position;
+    return record_length<Swap>(element, p, available, needed, list_offset, list_property,
+                               [&](const std::string& problem) {
+                                 throw_bad_input(name(), byte_place(source_.offset() + (p - source_.data())),
+                                                 element.name + " " + std::to_string(done_) + " " + problem);
+                               });
   }
 
   template <bool Swap>
@@ -245,18 +165,8 @@ class PlyReader final : public MeshReader {
   template <bool Swap>
   void binary_vertices(size_t budget, MeshBatch& batch) {
     const PlyElement& element = header_.elements[header_.vertex_element];
-    size_t record = element.fixed_record_size();
-    size_t offsets[3];
-    PlyType types[3];
-    for (int axis = 0; axis < 3; ++axis) {
-      size_t property = header_.coordinate_property[axis];
-      types[axis] = element.properties[property].type;
-      offsets[axis] = 0;
-      for (size_t i = 0; i < property; ++i) offsets[axis] += size_of(element.properties[i].type);
-    }
-    bool packed_floats = record == 12 && types[0] == PlyType::float32 &&
-                         types[1] == PlyType::float32 && types[2] == PlyType::float32 &&
-                         offsets[0] == 0 && offsets[1] == 4 && offsets[2] == 8;
+    const VertexLayout layout = vertex_layout(header_);
+    const size_t record = layout.record;
     while (done_ < element.count && batch.vertices.size() < budget) {
       if (record == 0) {
         // Lists in the vertex element: walk record by record; lists come after
@@ -270,18 +180,7 @@ class PlyReader final : public MeshReader {
       size_t base = batch.vertices.size();
       batch.vertices.resize(base + fit);
       Point* out = batch.vertices.data() + base;
-      const char* p = source_.data();
-      if (packed_floats) {
-        for (size_t i = 0; i < fit; ++i, p += 12) {
-          out[i] = {std::bit_cast<float>(load32<Swap>(p)), std::bit_cast<float>(load32<Swap>(p + 4)),
-                    std::bit_cast<float>(load32<Swap>(p + 8))};
-        }
-      } else {
-        for (size_t i = 0; i < fit; ++i, p += record) {
-          out[i] = {load_real<Swap>(types[0], p + offsets[0]), load_real<Swap>(types[1], p + offsets[1]),
-                    load_real<Swap>(types[2], p + offsets[2])};
-        }
-      }
+      decode_vertex_records<Swap>(layout, source_.data(), fit, out);
       for (size_t i = 0; i < fit; ++i) {
         if (!all_finite(out[i])) check_vertex(out[i], done_ + i, source_.offset() + i * record);
       }

@@ -1,0 +1,324 @@
+#include "io/ply_bulk.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+
+#include "io/byte_source.hpp"
+#include "io/mesh_file_kind.hpp"
+#include "io/ply_binary.hpp"
+#include "util/error.hpp"
+
+namespace qemflow::io {
+
+using namespace ply_binary;
+
+namespace {
+
+std::string byte_place(uint64_t offset) { return "byte " + std::to_string(offset); }
+
+// Reads up to `size` bytes at `offset`; fewer only at the end of the file.
+size_t read_at(int fd, const std::string& name, uint64_t offset, char* out, size_t size) {
+  size_t got = 0;
+  while (got < size) {
+    ssize_t n = ::pread(fd, out + got, size - got, off_t(offset + got));
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) throw_bad_input(name, byte_place(offset + got), std::string("cannot read: ") + std::strerror(errno));
+    if (n == 0) break;
+    got += size_t(n);
+  }
+  return got;
+}
+
+}  // namespace
+
+PlyBulkReader::PlyBulkReader(const std::filesystem::path& path, PlyHeader header, uint64_t file_size)
+    : name_(path.string()), header_(std::move(header)), file_size_(file_size) {
+  fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd_ < 0) throw_bad_input(name_, "cannot open", std::strerror(errno));
+  const PlyElement& vertices = header_.elements[header_.vertex_element];
+  vertex_count_ = vertices.count;
+  face_count_ = header_.face_element ? header_.elements[*header_.face_element].count : 0;
+  vertex_record_ = vertices.fixed_record_size();
+  vertices_begin_ = header_.byte_count;
+  faces_begin_ = vertices_begin_ + vertex_count_ * vertex_record_;
+  info_.format = header_.format;
+  info_.zstd = false;
+  info_.vertex_count = vertex_count_;
+  info_.polygon_count = face_count_;
+  info_.file_size = file_size_;
+  position_ = vertices_begin_;
+  if (vertex_count_ == 0) part_ = RawChunk::Part::faces;
+  bytes_read_ = header_.byte_count;
+}
+
+PlyBulkReader::~PlyBulkReader() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+bool PlyBulkReader::read(RawChunk& chunk, size_t max_bytes) {
+  chunk.clear();
+  if (ended_) return false;
+  chunk.part = part_;
+  chunk.offset = position_;
+  size_t want;
+  if (part_ == RawChunk::Part::vertices) {
+    want = std::max<size_t>(max_bytes / vertex_record_, 1) * vertex_record_;
+    want = size_t(std::min<uint64_t>(want, faces_begin_ - position_));
+  } else {
+    if (!header_.face_element) {
+      ended_ = true;
+      return false;
+    }
+    want = std::max<size_t>(max_bytes, 1);
+  }
+  chunk.bytes = std::make_unique_for_overwrite<char[]>(want);
+  chunk.size = read_at(fd_, name_, position_, chunk.bytes.get(), want);
+  position_ += chunk.size;
+  bytes_read_ += chunk.size;
+  const bool short_read = chunk.size < want;
+  if (part_ == RawChunk::Part::vertices) {
+    chunk.last = short_read || position_ == faces_begin_;
+    if (short_read) ended_ = true;
+    if (position_ == faces_begin_) part_ = RawChunk::Part::faces;
+  } else {
+    chunk.last = short_read || position_ >= file_size_;
+    if (chunk.last) ended_ = true;
+  }
+  return true;
+}
+
+void PlyBulkReader::truncated(const std::string& element_name, uint64_t element_count, uint64_t record,
+                              uint64_t offset, size_t needed, size_t found) const {
+  throw_bad_input(name_, byte_place(offset),
+                  "file ends inside " + element_name + " " + std::to_string(record) + " of " +
+                      std::to_string(element_count) + " (needed " + std::to_string(needed) +
+                      " more bytes, found " + std::to_string(found) + ")");
+}
+
+void PlyBulkReader::decode(const RawChunk& chunk, MeshBatch& batch) {
+  batch.clear();
+  const bool swap = header_.format == MeshFormat::ply_binary_be;
+  if (chunk.part == RawChunk::Part::vertices) {
+    if (swap) decode_vertices<true>(chunk, batch);
+    else decode_vertices<false>(chunk, batch);
+  } else {
+    if (swap) decode_faces<true>(chunk, batch);
+    else decode_faces<false>(chunk, batch);
+  }
+}
+
+template <bool Swap>
+void PlyBulkReader::decode_vertices(const RawChunk& chunk, MeshBatch& batch) {
+  const PlyElement& element = header_.elements[header_.vertex_element];
+  const VertexLayout layout = vertex_layout(header_);
+  const size_t record = layout.record;
+  batch.first_vertex = vertices_done_;
+  batch.first_triangle = 0;
+  const size_t count = size_t(std::min<uint64_t>(chunk.size / record, vertex_count_ - vertices_done_));
+  batch.vertices.resize(count);
+  Point* out = batch.vertices.data();
+  decode_vertex_records<Swap>(layout, chunk.bytes.get(), count, out);
+  for (size_t i = 0; i < count; ++i) {
+    if (all_finite(out[i])) continue;
+    const Point& v = out[i];
+    throw_bad_input(name_, byte_place(chunk.offset + i * record),
+                    "vertex " + std::to_string(vertices_done_ + i) + " has a non-finite coordinate (" +
+                        std::to_string(v[0]) + ", " + std::to_string(v[1]) + ", " + std::to_string(v[2]) + ")");
+  }
+  vertices_done_ += count;
+  if (chunk.last && vertices_done_ < vertex_count_) {
+    truncated(element.name, element.count, vertices_done_, chunk.offset + count * record, record,
+              chunk.size - count * record);
+  }
+}
+
+// The face record at `record` (`left` bytes available, file offset `offset`): its
+// length once all of it is there, its triangles appended at out[used...]; else 0 and
+// `needed`, the bytes known to be required. The same checks, in the same order and
+// words, as the streaming reader's binary_faces.
+template <bool Swap>
+size_t PlyBulkReader::face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
+                                  std::vector<Triangle>& out, size_t& used) {
+  const PlyElement& element = header_.elements[*header_.face_element];
+  const PlyProperty& list = element.properties[header_.index_property];
+  const size_t count_size = size_of(list.count_type);
+  const size_t index_size = size_of(list.type);
+  auto face_name = [this] { return "face " + std::to_string(faces_done_); };
+  size_t list_offset = 0;
+  size_t length = 0;
+  if (element.properties.size() == 1) {
+    if (left < count_size) {
+      needed = count_size;
+      return 0;
+    }
+    int64_t count = load_integer<Swap>(list.count_type, record);
+    if (count < 3) {
+      throw_bad_input(name_, byte_place(offset),
+                      face_name() + " has " + std::to_string(count) + " vertices (a face needs at least 3)");
+    }
+    length = count_size + size_t(count) * index_size;
+    if (length > max_record_bytes) {
+      throw_bad_input(name_, byte_place(offset),
+                      face_name() + " has an implausible " + std::to_string(count) + " vertices");
+    }
+  } else {
+    length = record_length<Swap>(element, record, left, needed, &list_offset, header_.index_property,
+                                 [&](const std::string& problem) {
+                                   throw_bad_input(name_, byte_place(offset), element.name + " " +
+                                                                                 std::to_string(faces_done_) + " " + problem);
+                                 });
+    if (length == 0) return 0;
+  }
+  if (length > left) {
+    needed = length;
+    return 0;
+  }
+  int64_t count = load_integer<Swap>(list.count_type, record + list_offset);
+  if (count < 3) {
+    throw_bad_input(name_, byte_place(offset),
+                    face_name() + " has " + std::to_string(count) + " vertices (a face needs at least 3)");
+  }
+  const char* indices = record + list_offset + count_size;
+  polygon_.resize(size_t(count));
+  for (int64_t i = 0; i < count; ++i) {
+    int64_t index = load_integer<Swap>(list.type, indices + i * index_size);
+    if (index < 0 || uint64_t(index) >= vertex_count_) {
+      throw_bad_input(name_, byte_place(offset),
+                      face_name() + " has vertex index " + std::to_string(index) + " but the file has " +
+                          std::to_string(vertex_count_) + " vertices");
+    }
+    polygon_[size_t(i)] = uint64_t(index);
+  }
+  if (out.size() < used + polygon_.size()) out.resize(2 * out.size() + polygon_.size());
+  for (size_t i = 1; i + 1 < polygon_.size(); ++i) out[used++] = {polygon_[0], polygon_[i], polygon_[i + 1]};
+  ++faces_done_;
+  return length;
+}
+
+template <bool Swap>
+void PlyBulkReader::decode_faces(const RawChunk& chunk, MeshBatch& batch) {
+  batch.first_vertex = vertex_count_;
+  batch.first_triangle = triangles_done_;
+  if (!header_.face_element) return;
+  const PlyElement& element = header_.elements[*header_.face_element];
+  const PlyProperty& list = element.properties[header_.index_property];
+  const bool fast = element.properties.size() == 1 && list.count_type == PlyType::uint8 &&
+                    (list.type == PlyType::int32 || list.type == PlyType::uint32);
+  const bool signed_index = list.type == PlyType::int32;
+  std::vector<Triangle>& out = batch.triangles;
+  out.resize(chunk.size / 13 + 8);
+  size_t used = 0;
+  const char* p = chunk.bytes.get();
+  size_t pos = 0;
+  size_t needed = 0;
+  auto finish = [&] { out.resize(used); triangles_done_ += used; };
+  // A record cut by the end of the previous range: completed from this one.
+  while (!carry_.empty() && faces_done_ < face_count_) {
+    if (face_record<Swap>(carry_.data(), carry_.size(), carry_offset_, needed, out, used) > 0) {
+      carry_.clear();
+      break;
+    }
+    size_t take = std::min(needed - carry_.size(), chunk.size - pos);
+    if (take == 0) {
+      if (chunk.last) truncated(element.name, element.count, faces_done_, carry_offset_, needed, carry_.size());
+      return finish();
+    }
+    carry_.insert(carry_.end(), p + pos, p + pos + take);
+    pos += take;
+  }
+  while (faces_done_ < face_count_ && pos < chunk.size) {
+    if (fast) {
+      // "list uchar int" triangles: a fixed stride while the count byte says 3.
+      size_t limit = size_t(std::min<uint64_t>(face_count_ - faces_done_, (chunk.size - pos) / 13));
+      if (out.size() < used + limit) out.resize(used + limit);
+      Triangle* t = out.data() + used;
+      size_t i = 0;
+      for (; i < limit; ++i) {
+        const char* r = p + pos + i * 13;
+        if (static_cast<uint8_t>(*r) != 3) break;
+        uint32_t a = load32<Swap>(r + 1), b = load32<Swap>(r + 5), c = load32<Swap>(r + 9);
+        // For signed int, negative values become huge as uint32 and fail this test too.
+        if (a >= vertex_count_ || b >= vertex_count_ || c >= vertex_count_) {
+          uint32_t bad = a >= vertex_count_ ? a : b >= vertex_count_ ? b : c;
+          int64_t shown = signed_index ? int64_t{static_cast<int32_t>(bad)} : int64_t{bad};
+          throw_bad_input(name_, byte_place(chunk.offset + pos + i * 13),
+                          "face " + std::to_string(faces_done_ + i) + " has vertex index " + std::to_string(shown) +
+                              " but the file has " + std::to_string(vertex_count_) + " vertices");
+        }
+        t[i] = {a, b, c};
+      }
+      used += i;
+      faces_done_ += i;
+      pos += i * 13;
+      if (faces_done_ == face_count_ || pos == chunk.size) break;
+    }
+    size_t length = face_record<Swap>(p + pos, chunk.size - pos, chunk.offset + pos, needed, out, used);
+    if (length == 0) {
+      carry_.assign(p + pos, p + chunk.size);
+      carry_offset_ = chunk.offset + pos;
+      if (chunk.last) truncated(element.name, element.count, faces_done_, carry_offset_, needed, carry_.size());
+      pos = chunk.size;
+      break;
+    }
+    pos += length;
+  }
+  if (chunk.last && faces_done_ < face_count_) {
+    // The file ends exactly between records.
+    face_record<Swap>(p, 0, chunk.offset + chunk.size, needed, out, used);
+    truncated(element.name, element.count, faces_done_, chunk.offset + chunk.size, needed, 0);
+  }
+  finish();
+}
+
+std::unique_ptr<PlyBulkReader> open_ply_bulk_reader(const std::filesystem::path& path) {
+  MeshFileKind kind = mesh_file_kind(path);
+  if (kind.obj || kind.zstd) return nullptr;
+  ByteSource source(path, false, size_t{1} << 16);
+  PlyHeader header = read_ply_header(source);
+  if (header.format == MeshFormat::ply_ascii || header.vertex_element != 0) return nullptr;
+  if (header.elements[0].fixed_record_size() == 0) return nullptr;
+  if (header.elements.size() > 2 || (header.elements.size() == 2 && header.face_element != 1)) return nullptr;
+  return std::make_unique<PlyBulkReader>(path, std::move(header), source.file_size());
+}
+
+size_t encode_ply_vertices(const Point* points, size_t count, bool double_precision, char* out) {
+  if (double_precision) {
+    std::memcpy(out, points, count * sizeof(Point));
+    return count * sizeof(Point);
+  }
+  for (size_t i = 0; i < count; ++i, out += 12) {
+    const float xyz[3] = {static_cast<float>(points[i][0]), static_cast<float>(points[i][1]),
+                          static_cast<float>(points[i][2])};
+    std::memcpy(out, xyz, 12);
+  }
+  return count * 12;
+}
+
+namespace {
+template <class Index>
+size_t encode_triangles(const Index* ids, size_t count, char* out, uint64_t& max_index) {
+  uint64_t largest = 0;
+  for (size_t i = 0; i < count; ++i, out += 13, ids += 3) {
+    const uint32_t abc[3] = {static_cast<uint32_t>(ids[0]), static_cast<uint32_t>(ids[1]),
+                             static_cast<uint32_t>(ids[2])};
+    largest = std::max({largest, uint64_t(ids[0]), uint64_t(ids[1]), uint64_t(ids[2])});
+    out[0] = 3;
+    std::memcpy(out + 1, abc, 12);
+  }
+  max_index = std::max(max_index, largest);
+  return count * 13;
+}
+}  // namespace
+
+size_t encode_ply_triangles(const Triangle* triangles, size_t count, char* out, uint64_t& max_index) {
+  return encode_triangles(reinterpret_cast<const uint64_t*>(triangles), count, out, max_index);
+}
+size_t encode_ply_triangles(const uint32_t* triangles, size_t count, char* out, uint64_t& max_index) {
+  return encode_triangles(triangles, count, out, max_index);
+}
+
+}  // namespace qemflow::io

@@ -1,0 +1,119 @@
+#pragma once
+// Binary PLY read in two halves, so that the I/O thread only moves bytes: read()
+// takes raw byte ranges of the body off the disk (I/O thread), decode() turns each
+// range into vertices or triangles in bulk (a compute thread, one range at a time in
+// read order, carrying a record cut by a range's end over to the next range).
+// The two halves touch disjoint state, so read() of range k+1 may run while range k
+// is decoded.
+//
+// Offered for uncompressed binary (LE or BE) PLY whose body is exactly a vertex
+// element of fixed-size records followed by an optional face element (any layout:
+// "list uchar int" triangles take a fixed-stride fast path, other lists and extra
+// properties a per-record scan). Anything else (ascii, .zst, OBJ, other elements,
+// lists in vertices) gets nullptr from open_ply_bulk_reader: use the streaming
+// MeshReader (io/mesh_stream.hpp).
+//
+// Errors are those of the streaming reader, word for word and at the same byte
+// offsets (non-finite coordinates, bad indices, bad list counts, truncation), each
+// raised by decode() when it reaches the record, so the first bad record in file
+// order is the one reported. Header errors are raised by open_ply_bulk_reader.
+// A truncated body is seen by decode() on the range read() marks `last`.
+//
+// Encoding (the writing half): encode_ply_vertices / encode_ply_triangles make the
+// exact bytes io::MeshWriter's PLY writer writes for a batch, on any thread; the I/O
+// thread then appends them with MeshWriter::write_encoded_*.
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "io/mesh_stream.hpp"
+#include "io/ply_header.hpp"
+
+namespace qemflow::io {
+
+// One raw byte range of a PLY body.
+struct RawChunk {
+  enum class Part : uint8_t { vertices, faces };
+  Part part = Part::vertices;
+  uint64_t offset = 0;  // file offset of bytes[0]
+  size_t size = 0;
+  bool last = false;    // the part ends with this range (or the file does)
+  std::unique_ptr<char[]> bytes;
+  void clear() {
+    bytes.reset();
+    size = 0;
+  }
+};
+
+class PlyBulkReader {
+ public:
+  PlyBulkReader(const std::filesystem::path& path, PlyHeader header, uint64_t file_size);
+  ~PlyBulkReader();
+  PlyBulkReader(const PlyBulkReader&) = delete;
+  PlyBulkReader& operator=(const PlyBulkReader&) = delete;
+
+  const MeshInfo& info() const { return info_; }
+  const std::string& name() const { return name_; }
+
+  // ---- I/O thread ----
+  // The next range, about `max_bytes` (whole vertex records; at least one record).
+  // False once every range has been handed out (the chunk is then empty).
+  bool read(RawChunk& chunk, size_t max_bytes);
+  // True once every vertex range has been handed out (the next read is faces).
+  bool past_vertices() const { return part_ == RawChunk::Part::faces || ended_; }
+  uint64_t bytes_read() const { return bytes_read_; }
+
+  // ---- one compute thread at a time, ranges in read order ----
+  // Fills `batch` (cleared first) with the range's vertices or triangles.
+  void decode(const RawChunk& chunk, MeshBatch& batch);
+
+ private:
+  template <bool Swap> void decode_vertices(const RawChunk& chunk, MeshBatch& batch);
+  template <bool Swap> void decode_faces(const RawChunk& chunk, MeshBatch& batch);
+  template <bool Swap> size_t face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
+                                          std::vector<Triangle>& out, size_t& used_triangles);
+  [[noreturn]] void truncated(const std::string& element_name, uint64_t element_count, uint64_t record,
+                              uint64_t offset, size_t needed, size_t found) const;
+
+  std::string name_;
+  PlyHeader header_;
+  MeshInfo info_;
+  int fd_ = -1;
+  uint64_t file_size_ = 0;
+  uint64_t vertex_count_ = 0;
+  uint64_t face_count_ = 0;
+  size_t vertex_record_ = 0;
+  uint64_t vertices_begin_ = 0, faces_begin_ = 0;
+
+  // read() side
+  RawChunk::Part part_ = RawChunk::Part::vertices;
+  uint64_t position_ = 0;
+  bool ended_ = false;
+  uint64_t bytes_read_ = 0;
+
+  // decode() side
+  uint64_t vertices_done_ = 0;
+  uint64_t faces_done_ = 0;
+  uint64_t triangles_done_ = 0;
+  std::vector<char> carry_;  // a face record cut by the end of the previous range
+  uint64_t carry_offset_ = 0;
+  std::vector<uint64_t> polygon_;
+};
+
+// A bulk reader for `path`, or nullptr when its name or body layout is not one the
+// bulk path serves (see above). Throws what the streaming reader's open throws for
+// a bad header.
+std::unique_ptr<PlyBulkReader> open_ply_bulk_reader(const std::filesystem::path& path);
+
+// PLY body bytes as the PLY writer makes them: xyz as float (12 bytes a vertex) or
+// double (24); faces as "3 a b c" with uchar count and 32-bit indices (13 bytes).
+// Each returns the bytes written at `out`; encode_ply_triangles also returns the
+// largest index seen (for the writer's index check).
+size_t encode_ply_vertices(const Point* points, size_t count, bool double_precision, char* out);
+size_t encode_ply_triangles(const Triangle* triangles, size_t count, char* out, uint64_t& max_index);
+size_t encode_ply_triangles(const uint32_t* triangles, size_t count, char* out, uint64_t& max_index);
+inline constexpr size_t ply_triangle_bytes = 13;
+
+}  // namespace qemflow::io

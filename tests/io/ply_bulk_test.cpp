@@ -1,0 +1,296 @@
+// The bulk binary PLY path (io/ply_bulk.hpp): raw byte ranges decoded in order must
+// give exactly what the streaming reader gives, for every range size (records cut
+// anywhere), every layout it accepts, and every bad input, word for word; the
+// encoders must make exactly the writer's bytes.
+#include <gtest/gtest.h>
+
+#include <string>
+#include <vector>
+
+#include "io/ply_bulk.hpp"
+#include "io_test_support.hpp"
+#include "ply_builder.hpp"
+#include "test_support.hpp"
+
+namespace qemflow::io {
+namespace {
+
+using qemflow::testing::TempDir;
+using testing::PlyBuilder;
+
+// The whole file through the bulk reader, ranges of about `max_bytes`.
+IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes) {
+  auto reader = open_ply_bulk_reader(path);
+  EXPECT_TRUE(reader) << path;
+  IndexedMesh mesh;
+  if (!reader) return mesh;
+  RawChunk chunk;
+  MeshBatch batch;
+  while (reader->read(chunk, max_bytes)) {
+    reader->decode(chunk, batch);
+    EXPECT_EQ(batch.first_vertex, mesh.vertices.size());
+    EXPECT_EQ(batch.first_triangle, mesh.triangles.size());
+    mesh.vertices.insert(mesh.vertices.end(), batch.vertices.begin(), batch.vertices.end());
+    mesh.triangles.insert(mesh.triangles.end(), batch.triangles.begin(), batch.triangles.end());
+  }
+  EXPECT_TRUE(reader->past_vertices());
+  return mesh;
+}
+
+std::string bulk_bad_input_message(const std::filesystem::path& path, size_t max_bytes) {
+  try {
+    bulk_read(path, max_bytes);
+  } catch (const Error& error) {
+    EXPECT_EQ(error.kind(), ErrorKind::bad_input) << error.what();
+    return error.what();
+  }
+  return "";
+}
+
+void expect_same_mesh(const IndexedMesh& a, const IndexedMesh& b) {
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  ASSERT_EQ(a.triangles.size(), b.triangles.size());
+  for (size_t i = 0; i < a.vertices.size(); ++i) EXPECT_EQ(a.vertices[i], b.vertices[i]) << "vertex " << i;
+  for (size_t i = 0; i < a.triangles.size(); ++i) EXPECT_EQ(a.triangles[i], b.triangles[i]) << "triangle " << i;
+}
+
+struct Layout {
+  std::string format = "binary_little_endian";
+  std::string coordinate = "float";
+  bool vertex_extra = false;   // a uchar and a double around x y z
+  std::string count = "uchar";
+  std::string index = "int";
+  bool face_extra = false;     // a float before the list and an int after it
+  bool polygons = false;       // quads and a pentagon among the triangles
+};
+
+// 40 vertices and 60 faces in `layout`.
+std::string make_ply(const Layout& layout) {
+  PlyBuilder ply(layout.format);
+  ply.header_line("element vertex 40");
+  if (layout.vertex_extra) ply.header_line("property uchar flag");
+  for (const char* axis : {"x", "y", "z"}) ply.header_line("property " + layout.coordinate + " " + axis);
+  if (layout.vertex_extra) ply.header_line("property double weight");
+  ply.header_line("element face 60");
+  if (layout.face_extra) ply.header_line("property float area");
+  ply.header_line("property list " + layout.count + " " + layout.index + " vertex_indices");
+  if (layout.face_extra) ply.header_line("property int tag");
+  for (int v = 0; v < 40; ++v) {
+    if (layout.vertex_extra) ply.value("uchar", v % 7);
+    ply.value(layout.coordinate, v * 0.5);
+    ply.value(layout.coordinate, 1.25 - v);
+    ply.value(layout.coordinate, v % 3);
+    if (layout.vertex_extra) ply.value("double", v * 3.0);
+  }
+  for (int f = 0; f < 60; ++f) {
+    int corners = layout.polygons && f % 5 == 2 ? 4 + f % 2 : 3;
+    if (layout.face_extra) ply.value("float", f * 0.1);
+    ply.value(layout.count, corners);
+    for (int k = 0; k < corners; ++k) ply.value(layout.index, (f * 7 + k * 3) % 40);
+    if (layout.face_extra) ply.value("int", -f);
+  }
+  return ply.bytes();
+}
+
+std::vector<Layout> layouts() {
+  std::vector<Layout> all;
+  all.push_back({});
+  Layout be;
+  be.format = "binary_big_endian";
+  all.push_back(be);
+  Layout wide;
+  wide.coordinate = "double";
+  wide.index = "uint";
+  wide.vertex_extra = true;
+  all.push_back(wide);
+  Layout polygons;
+  polygons.polygons = true;
+  all.push_back(polygons);
+  Layout odd;
+  odd.format = "binary_big_endian";
+  odd.count = "ushort";
+  odd.index = "short";
+  odd.polygons = true;
+  all.push_back(odd);
+  Layout extra;
+  extra.face_extra = true;
+  extra.polygons = true;
+  all.push_back(extra);
+  return all;
+}
+
+TEST(PlyBulk, DecodesEveryLayoutLikeTheStreamingReaderWhereverRangesEnd) {
+  TempDir dir;
+  for (const Layout& layout : layouts()) {
+    auto path = dir / "m.ply";
+    testing::write_bytes(path, make_ply(layout));
+    IndexedMesh expected = testing::read_in_batches(path, 1000);
+    ASSERT_EQ(expected.vertices.size(), 40u);
+    for (size_t max_bytes : {1, 2, 5, 12, 13, 14, 27, 100, 1 << 20}) {
+      SCOPED_TRACE(layout.format + " " + layout.count + " " + layout.index + " range " + std::to_string(max_bytes));
+      expect_same_mesh(bulk_read(path, max_bytes), expected);
+    }
+  }
+}
+
+TEST(PlyBulk, OnlyPlainBinaryPlyWithVerticesThenFaces) {
+  TempDir dir;
+  IndexedMesh mesh = testing::small_mesh();
+  write_mesh(dir / "m.ply", mesh);
+  EXPECT_TRUE(open_ply_bulk_reader(dir / "m.ply"));
+  write_mesh(dir / "m.ply.zst", mesh);
+  EXPECT_FALSE(open_ply_bulk_reader(dir / "m.ply.zst"));
+  write_mesh(dir / "m.obj", mesh);
+  EXPECT_FALSE(open_ply_bulk_reader(dir / "m.obj"));
+  PlyBuilder ascii("ascii");
+  ascii.header_line("element vertex 0");
+  for (const char* axis : {"x", "y", "z"}) ascii.header_line(std::string("property float ") + axis);
+  testing::write_bytes(dir / "a.ply", ascii.bytes());
+  EXPECT_FALSE(open_ply_bulk_reader(dir / "a.ply"));
+  // A third element (streaming reader only) and vertices alone (bulk).
+  PlyBuilder other("binary_little_endian");
+  other.header_line("element vertex 1");
+  for (const char* axis : {"x", "y", "z"}) other.header_line(std::string("property float ") + axis);
+  testing::write_bytes(dir / "v.ply", other.bytes() + std::string(12, '\0'));
+  EXPECT_TRUE(open_ply_bulk_reader(dir / "v.ply"));
+  EXPECT_EQ(bulk_read(dir / "v.ply", 5).vertices.size(), 1u);
+  other.header_line("element edge 0");
+  other.header_line("property int a");
+  testing::write_bytes(dir / "e.ply", other.bytes() + std::string(12, '\0'));
+  EXPECT_FALSE(open_ply_bulk_reader(dir / "e.ply"));
+}
+
+// Every truncation of every layout, at several range sizes: the same message as the
+// streaming reader (file, byte offset, what was expected, what was found).
+TEST(PlyBulk, TruncatedAnywhereFailsExactlyLikeTheStreamingReader) {
+  TempDir dir;
+  for (const Layout& layout : layouts()) {
+    const std::string bytes = make_ply(layout);
+    const size_t header = bytes.find("end_header\n") + 11;
+    for (size_t length = header; length < bytes.size(); length += 1 + length % 11) {
+      auto path = dir / "t.ply";
+      testing::write_bytes(path, bytes.substr(0, length));
+      const std::string expected = testing::bad_input_message(path);
+      ASSERT_NE(expected.find("file ends inside"), std::string::npos) << expected;
+      for (size_t max_bytes : {3, 13, 1 << 20}) {
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "length " << length << " range " << max_bytes;
+      }
+    }
+  }
+}
+
+// Bad records (index out of range or negative, too few corners, implausible count,
+// non-finite coordinate), each somewhere in the middle: the same message.
+TEST(PlyBulk, BadRecordsFailExactlyLikeTheStreamingReader) {
+  TempDir dir;
+  struct Case {
+    Layout layout;
+    int face;
+    int corners;      // written count
+    int index;        // written as every index
+    bool nan_vertex;  // vertex 17's y is NaN instead
+  };
+  std::vector<Case> cases;
+  for (const Layout& layout : layouts()) {
+    cases.push_back({layout, 33, 3, 40, false});
+    cases.push_back({layout, 34, 3, -1, false});
+    cases.push_back({layout, 35, 2, 0, false});
+    cases.push_back({layout, 36, 0, 0, false});
+    cases.push_back({layout, 0, 3, 0, true});
+  }
+  for (const Case& c : cases) {
+    const Layout& layout = c.layout;
+    if (c.index < 0 && (layout.index == "uint")) continue;  // no negative to write
+    PlyBuilder ply(layout.format);
+    ply.header_line("element vertex 40");
+    for (const char* axis : {"x", "y", "z"}) ply.header_line("property " + layout.coordinate + " " + axis);
+    ply.header_line("element face 60");
+    ply.header_line("property list " + layout.count + " " + layout.index + " vertex_indices");
+    for (int v = 0; v < 40; ++v) {
+      ply.value(layout.coordinate, v);
+      ply.value(layout.coordinate, c.nan_vertex && v == 17 ? std::nan("") : 1.0);
+      ply.value(layout.coordinate, 2.0);
+    }
+    for (int f = 0; f < 60; ++f) {
+      int corners = f == c.face ? c.corners : layout.polygons && f % 5 == 2 ? 4 : 3;
+      ply.value(layout.count, corners);
+      for (int k = 0; k < corners; ++k) ply.value(layout.index, f == c.face ? c.index : (f + k) % 40);
+    }
+    auto path = dir / "b.ply";
+    testing::write_bytes(path, ply.bytes());
+    const std::string expected = testing::bad_input_message(path);
+    ASSERT_NE(expected.find(": byte "), std::string::npos) << expected;
+    for (size_t max_bytes : {7, 13, 1 << 20}) {
+      EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "range " << max_bytes;
+    }
+  }
+}
+
+TEST(PlyBulk, EncodersMakeTheWritersBytes) {
+  TempDir dir;
+  IndexedMesh mesh = testing::small_mesh();
+  mesh.vertices.push_back({1.0 / 3, 1e30, -0.0});
+  for (bool double_precision : {false, true}) {
+    WriteOptions options;
+    options.double_precision = double_precision;
+    auto plain = open_mesh_writer(dir / "plain.ply", mesh.vertices.size(), mesh.triangles.size(), options);
+    plain->write_vertices(mesh.vertices.data(), mesh.vertices.size());
+    plain->write_triangles(mesh.triangles.data(), mesh.triangles.size());
+    plain->commit();
+
+    auto bulk = open_mesh_writer(dir / "bulk.ply", mesh.vertices.size(), mesh.triangles.size(), options);
+    ASSERT_EQ(bulk->ply_vertex_double(), double_precision);
+    std::vector<char> bytes(mesh.vertices.size() * 24 + mesh.triangles.size() * ply_triangle_bytes);
+    // In two parts each, as a caller encoding batches would.
+    size_t n = encode_ply_vertices(mesh.vertices.data(), 3, double_precision, bytes.data());
+    bulk->write_encoded_vertices(bytes.data(), 3);
+    n = encode_ply_vertices(mesh.vertices.data() + 3, mesh.vertices.size() - 3, double_precision, bytes.data());
+    EXPECT_EQ(n, (mesh.vertices.size() - 3) * (double_precision ? 24 : 12));
+    bulk->write_encoded_vertices(bytes.data(), mesh.vertices.size() - 3);
+    uint64_t max_index = 0;
+    n = encode_ply_triangles(mesh.triangles.data(), 1, bytes.data(), max_index);
+    EXPECT_EQ(n, ply_triangle_bytes);
+    bulk->write_encoded_triangles(bytes.data(), 1, max_index);
+    std::vector<uint32_t> narrow;
+    for (size_t t = 1; t < mesh.triangles.size(); ++t)
+      for (uint64_t v : mesh.triangles[t]) narrow.push_back(uint32_t(v));
+    max_index = 0;
+    encode_ply_triangles(narrow.data(), mesh.triangles.size() - 1, bytes.data(), max_index);
+    EXPECT_EQ(max_index, 5u);
+    bulk->write_encoded_triangles(bytes.data(), mesh.triangles.size() - 1, max_index);
+    bulk->commit();
+    EXPECT_EQ(testing::read_bytes(dir / "bulk.ply"), testing::read_bytes(dir / "plain.ply"));
+    // Both use the encoders, so the body is also checked against bytes made by hand.
+    std::string body;
+    for (const Point& p : mesh.vertices) {
+      for (double c : p) {
+        if (double_precision) testing::put(body, c);
+        else testing::put(body, float(c));
+      }
+    }
+    for (const Triangle& t : mesh.triangles) {
+      testing::put(body, uint8_t{3});
+      for (uint64_t v : t) testing::put(body, int32_t(v));
+    }
+    const std::string file = testing::read_bytes(dir / "bulk.ply");
+    ASSERT_GE(file.size(), body.size());
+    EXPECT_EQ(file.substr(file.size() - body.size()), body);
+  }
+}
+
+TEST(PlyBulk, EncodedWritesKeepTheWritersChecks) {
+  TempDir dir;
+  auto ply = open_mesh_writer(dir / "m.ply", 3, 1);
+  char bytes[64] = {};
+  EXPECT_THROW(ply->write_encoded_triangles(bytes, 1, 0), Error);  // before the vertices
+  ply->write_encoded_vertices(bytes, 3);
+  EXPECT_THROW(ply->write_encoded_vertices(bytes, 1), Error);      // more than declared
+  EXPECT_THROW(ply->write_encoded_triangles(bytes, 1, 3), Error);  // index past the vertices
+  EXPECT_THROW(ply->write_encoded_triangles(bytes, 2, 0), Error);  // more than declared
+  auto obj = open_mesh_writer(dir / "m.obj", 3, 1);
+  EXPECT_FALSE(obj->ply_vertex_double());
+  EXPECT_THROW(obj->write_encoded_vertices(bytes, 3), Error);
+}
+
+}  // namespace
+}  // namespace qemflow::io
