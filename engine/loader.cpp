@@ -15,6 +15,7 @@
 #include "engine/spill.hpp"
 #include "engine/stream_pass.hpp"
 #include "io/mesh_stream.hpp"
+#include "io/ply_bulk.hpp"
 #include "util/error.hpp"
 #include "util/hash.hpp"
 
@@ -152,6 +153,7 @@ uint32_t block_count_for(uint64_t faces, uint64_t faces_per_block) {
 
 // One input batch on its way through the load pass.
 struct InputItem {
+  io::RawChunk raw;                                       // bulk input: the bytes as read
   io::MeshBatch batch;
   Box box;
   std::vector<std::pair<uint64_t, Bytes>> vertex_frames;  // (window, frame)
@@ -160,21 +162,46 @@ struct InputItem {
   uint64_t dropped = 0;                                   // faces with a repeated welded vertex
 };
 
-// The input reader, driven from the I/O thread only.
+// The input, read from the I/O thread. A binary PLY goes through the bulk reader:
+// the I/O thread only reads byte ranges and decode() (a compute thread, ranges in
+// read order) parses them; any other input through the streaming reader, which
+// parses on the I/O thread.
 struct InputStream {
+  std::unique_ptr<io::PlyBulkReader> bulk;
   std::unique_ptr<io::MeshReader> reader;
   std::filesystem::path path;
   uint64_t size = 0;
+  void open() {
+    carried.reset();
+    vertices_done = false;
+    bulk = io::open_ply_bulk_reader(path);
+    if (!bulk) reader = io::open_mesh_reader(path);
+  }
+  void close() {
+    bulk.reset();
+    reader.reset();
+  }
+  const io::MeshInfo& info() const { return bulk ? bulk->info() : reader->info(); }
+  uint64_t bytes_read() const { return bulk ? bulk->bytes_read() : reader->bytes_read(); }
   bool read(InputItem& item, Lease& lease) {
     size_t elements = std::max<uint64_t>(lease.bytes() / bytes_per_input_element, 64);
+    if (bulk) return bulk->read(item.raw, elements * io::ply_triangle_bytes);
     return reader->next(item.batch, elements) &&
            (!item.batch.vertices.empty() || !item.batch.triangles.empty());
   }
+  // Compute side of the bulk reader: one item at a time, in read order.
+  void decode(InputItem& item) {
+    if (!bulk) return;
+    bulk->decode(item.raw, item.batch);
+    item.raw.clear();
+  }
   // Vertices first, then faces, as two passes: the vertex pass ends at the first
-  // triangle, which is carried over to the face pass.
+  // triangle, which is carried over to the face pass (the bulk reader's ranges are
+  // all vertices or all faces, so it ends where the faces begin).
   std::optional<io::MeshBatch> carried;
   bool vertices_done = false;
   bool read_vertices(InputItem& item, Lease& lease) {
+    if (bulk) return !bulk->past_vertices() && read(item, lease);
     if (vertices_done || !read(item, lease)) return false;
     if (!item.batch.triangles.empty()) {
       vertices_done = true;
@@ -186,6 +213,7 @@ struct InputStream {
     return !item.batch.vertices.empty();
   }
   bool read_faces(InputItem& item, Lease& lease) {
+    if (bulk) return read(item, lease);
     if (carried) {
       item.batch = std::move(*carried);
       carried.reset();
@@ -294,8 +322,8 @@ class Loader {
          const LoadOptions& options, const LoadHooks& hooks)
       : job_(job), scratch_(scratch), options_(options), hooks_(hooks) {
     input_.path = input;
-    input_.reader = job_.io().call("open input", [&] { return io::open_mesh_reader(input); });
-    input_.size = input_.reader->info().file_size;
+    job_.io().call("open input", [&] { input_.open(); });
+    input_.size = input_.info().file_size;
     // One reservation for everything the loader holds for a whole pass (spills,
     // vertex chunks, face ranges), taken at once and handed out with split(): a job
     // never holds part of its working set while waiting for the rest, so jobs sharing
@@ -313,7 +341,7 @@ class Loader {
   }
 
   LoadedMesh run() {
-    const auto& info = input_.reader->info();
+    const auto& info = input_.info();
     mesh_.input_bytes = input_.size;
     bool resident = info.vertex_count && !options_.force_out_of_core &&
                     *info.vertex_count * sizeof(Point) <= capacity_ * 6 / 10;
@@ -322,7 +350,7 @@ class Loader {
     } else {
       load_out_of_core();
     }
-    input_.reader.reset();
+    input_.close();
     return std::move(mesh_);
   }
 
@@ -357,12 +385,13 @@ class Loader {
       report_read_progress();
       return more;
     };
+    if (input_.bulk) pass.decode = [this](InputItem& item, Lease&) { input_.decode(item); };
     return pass;
   }
 
   void report_read_progress() {
-    job_.stage("load").bytes_read = input_.reader->bytes_read();
-    if (input_.size) job_.progress(progress_base_ + progress_span_ * double(input_.reader->bytes_read()) / double(input_.size), "load");
+    job_.stage("load").bytes_read = input_.bytes_read();
+    if (input_.size) job_.progress(progress_base_ + progress_span_ * double(input_.bytes_read()) / double(input_.size), "load");
   }
 
   void build_grid(uint64_t faces) {
@@ -439,7 +468,7 @@ class Loader {
   // degree pass reads them back, else for triangle-only blocks just the three ids
   // (u32 when the header's vertex count allows): 12 bytes instead of 32.
   uint32_t local_record_size() const {
-    const auto& count = input_.reader->info().vertex_count;
+    const auto& count = input_.info().vertex_count;
     if (options_.triangles_only && !options_.degrees && count && *count <= UINT32_MAX) return triangle32_record_size;
     return sizeof(LocalFace);
   }
@@ -536,9 +565,7 @@ class Loader {
 
   // Opens the input again and reads through its vertices (the face pass follows).
   void reopen_input_past_vertices() {
-    input_.reader = job_.io().call("open input", [&] { return io::open_mesh_reader(input_.path); });
-    input_.carried.reset();
-    input_.vertices_done = false;
+    job_.io().call("open input", [&] { input_.open(); });
     progress_base_ += progress_span_;
     auto pass = input_pass(&InputStream::read_vertices);
         run_stream_pass(job_, pass);
@@ -684,7 +711,7 @@ class Loader {
                                ? options_.window_vertices
                                : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.15) / sizeof(Point));
     mesh_.vertices.window = chunk;
-    const auto& info = input_.reader->info();
+    const auto& info = input_.info();
     uint32_t expected_chunks =
         info.vertex_count ? uint32_t(std::max<uint64_t>((*info.vertex_count + chunk - 1) / chunk, 1)) : 16;
 
@@ -782,7 +809,7 @@ class Loader {
     mesh_.float_exact = box_.float_exact;
     const uint32_t chunks = uint32_t(std::max<uint64_t>((vertex_count + chunk - 1) / chunk, 1));
     mesh_.vertices.windows.resize(chunks);
-    input_.reader.reset();
+    input_.close();
     if (vertex_count == 0) box_.min = box_.max = Point{0, 0, 0};
     build_grid(face_count);
     timer.reset();

@@ -6,6 +6,7 @@
 #include "engine/report.hpp"
 #include "engine/scratch.hpp"
 #include "io/mesh_stream.hpp"
+#include "io/ply_bulk.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -14,18 +15,81 @@ namespace {
 
 constexpr uint64_t vertices_per_write = 1 << 16;
 
+// Binary PLY output is encoded here, on compute threads, and the I/O thread only
+// appends the bytes (DESIGN §2); other formats are still encoded by their writer on
+// the I/O thread.
+bool encodes_here(const io::MeshWriter& writer) { return writer.ply_vertex_double().has_value(); }
+
+struct EncodedBytes {
+  std::unique_ptr<char[]> bytes;
+  Lease lease;
+};
+
+// Writes points [0, n) through the I/O thread; they must stay valid until it drains.
+// Float PLY vertices are encoded here first when a buffer for them fits the budget
+// right now (never waiting for memory: callers may hold leases others wait for).
+void submit_vertices(Job& job, io::MeshWriter& writer, const Point* points, uint64_t n) {
+  for (uint64_t first = 0; first < n; first += vertices_per_write) {
+    const uint64_t count = std::min(vertices_per_write, n - first);
+    const Point* slice = points + first;
+    Lease lease;
+    if (encodes_here(writer) && !*writer.ply_vertex_double()) {
+      lease = job.governor().try_acquire(job.owner("vertex writes"), count * 12);
+    }
+    if (!lease) {
+      job.io().submit("write vertices", [&writer, slice, count] { writer.write_vertices(slice, count); },
+                      job.error_handler(), count * sizeof(Point));
+      continue;
+    }
+    auto held = std::make_shared<EncodedBytes>();
+    held->bytes = std::make_unique_for_overwrite<char[]>(count * 12);
+    io::encode_ply_vertices(slice, count, false, held->bytes.get());
+    held->lease = std::move(lease);
+    job.io().submit(
+        "write vertices",
+        [&writer, held, count] {
+          writer.write_encoded_vertices(held->bytes.get(), count);
+          held->bytes.reset();
+          held->lease.release();
+        },
+        job.error_handler(), count * 12);
+  }
+}
+
+// Hands `count` PLY triangles, encoded at `bytes` (with the lease that covers them),
+// to the I/O thread to write.
+template <class Buffer>
+void submit_encoded_triangles(Job& job, io::MeshWriter& writer, Buffer bytes, uint64_t count, uint64_t max_index,
+                              Lease lease) {
+  auto held = std::make_shared<std::pair<Buffer, Lease>>(std::move(bytes), std::move(lease));
+  job.io().submit(
+      "write triangles",
+      [&writer, held, count, max_index] {
+        writer.write_encoded_triangles(reinterpret_cast<const char*>(held->first.data()), count, max_index);
+        held->first = Buffer();
+        held->second.release();
+      },
+      job.error_handler(), count * io::ply_triangle_bytes);
+}
+
+// Block records (u32 or u64 triangle records) as PLY face records at `out`.
+uint64_t encode_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, char* out) {
+  uint64_t max_index = 0;
+  if (record_size == triangle32_record_size) {
+    io::encode_ply_triangles(reinterpret_cast<const uint32_t*>(records), count, out, max_index);
+  } else {
+    io::encode_ply_triangles(reinterpret_cast<const Triangle*>(records), count, out, max_index);
+  }
+  return max_index;
+}
+
 // Writes every vertex, in index order, through the I/O thread.
 void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io::MeshWriter& writer) {
   StageStats& stage = job.stage("write");
   const VertexStore& store = mesh.vertices;
   if (mesh.vertices_delivered) return;  // written by the loader's dereference
   if (store.is_resident()) {
-    for (uint64_t first = 0; first < store.count; first += vertices_per_write) {
-      uint64_t n = std::min(vertices_per_write, store.count - first);
-      const Point* points = store.resident.data() + first;
-      job.io().submit("write vertices", [&writer, points, n] { writer.write_vertices(points, n); },
-                      job.error_handler(), n * sizeof(Point));
-    }
+    submit_vertices(job, writer, store.resident.data(), store.count);
     job.io().drain();
     job.check();
     return;
@@ -37,7 +101,8 @@ void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io:
     Lease lease = job.governor().acquire(job.owner("vertex window"), n * sizeof(Point), n * sizeof(Point));
     UninitializedVector<Point> positions(n);
     load_vertex_window(job, scratch, store, w, positions.data());
-    job.io().call("write vertices", [&] { writer.write_vertices(positions.data(), n); });
+    submit_vertices(job, writer, positions.data(), n);
+    job.io().drain();
     job.check();
     job.progress(0.8 + 0.1 * double(w + 1) / double(store.windows.size()), "write");
   }
@@ -70,6 +135,18 @@ uint64_t write_resident_triangles(Job& job, LoadedMesh& mesh, io::MeshWriter& wr
       Lease lease = job.governor().acquire(job.owner("triangle writes"), n * sizeof(Triangle), n * sizeof(Triangle),
                                            [&job] { return job.stopped(); });
       job.check();
+      if (encodes_here(writer)) {
+        Lease bytes_lease = lease.split(n * io::ply_triangle_bytes);
+        lease.release();
+        UninitializedVector<char> bytes(n * io::ply_triangle_bytes);
+        uint64_t max_index = encode_block_triangles(page.data(), n, mesh.block_record_size, bytes.data());
+        mesh.resident_blocks_lease.shrink_to(mesh.resident_blocks_lease.bytes() - std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
+        page = Bytes();
+        submit_encoded_triangles(job, writer, std::move(bytes), n, max_index, std::move(bytes_lease));
+        written += n;
+        job.progress(0.9 + 0.1 * double(++done) / double(pages), "write");
+        continue;
+      }
       UninitializedVector<Triangle> triangles(n);
       unpack_block_triangles(page.data(), n, mesh.block_record_size, triangles.data());
       mesh.resident_blocks_lease.shrink_to(mesh.resident_blocks_lease.bytes() - std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
@@ -93,9 +170,20 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
   for (const auto& block : mesh.blocks) frames.insert(frames.end(), block.begin(), block.end());
   uint64_t written = 0;
   size_t done = 0;
+  // Triangle records to PLY bytes on the compute threads; the largest index rides in
+  // 8 bytes after them, for the writer's check.
+  const bool encode = encodes_here(writer) && is_triangle_record(mesh.block_record_size);
   for_each_frame(
       job, scratch, "write", "block frames", frames, mesh.block_record_size,
-      [&mesh](const FrameHeader& header, Bytes& records, Lease&) {
+      [&mesh, encode](const FrameHeader& header, Bytes& records, Lease&) {
+        if (encode) {
+          Bytes out(header.count * io::ply_triangle_bytes + sizeof(uint64_t));
+          uint64_t max_index = encode_block_triangles(records.data(), header.count, mesh.block_record_size,
+                                                      reinterpret_cast<char*>(out.data()));
+          std::memcpy(out.data() + header.count * io::ply_triangle_bytes, &max_index, sizeof max_index);
+          records.swap(out);
+          return;
+        }
         if (is_triangle_record(mesh.block_record_size)) {
           Bytes out(header.count * sizeof(Triangle));
           unpack_block_triangles(records.data(), header.count, mesh.block_record_size,
@@ -113,6 +201,14 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
         }
       },
       [&](const FrameHeader& header, Bytes& records, Lease& lease) {
+        if (encode) {
+          uint64_t max_index;
+          std::memcpy(&max_index, records.data() + header.count * io::ply_triangle_bytes, sizeof max_index);
+          submit_encoded_triangles(job, writer, std::move(records), header.count, max_index, lease.split(lease.bytes()));
+          written += header.count;
+          job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
+          return;
+        }
         auto held = std::make_shared<std::pair<Bytes, Lease>>(std::move(records), lease.split(lease.bytes()));
         uint64_t n = header.count;
         job.io().submit(
@@ -126,7 +222,7 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
         written += n;
         job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
       },
-      is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0);
+      encode ? uint32_t(io::ply_triangle_bytes) : is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0);
   job.io().drain();
   job.check();
   return written;
@@ -200,11 +296,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     };
     LoadHooks hooks;
     hooks.counted = open_output;
-    hooks.vertices = [&](uint64_t, const Point* points, uint64_t n) {
-      io::MeshWriter* out = writer.get();
-      job.io().submit("write vertices", [out, points, n] { out->write_vertices(points, n); }, job.error_handler(),
-                      n * sizeof(Point));
-    };
+    hooks.vertices = [&](uint64_t, const Point* points, uint64_t n) { submit_vertices(job, *writer, points, n); };
     // The input as it is: re-encode keeps every vertex and face.
     LoadedMesh mesh = load_into_blocks(job, scratch, options.input, LoadOptions::verbatim(options.load), hooks);
     open_output(mesh);

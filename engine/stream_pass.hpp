@@ -1,7 +1,8 @@
 #pragma once
 // A stream pass: the flow-graph shape every pipeline stage of qemflow is built from.
 //
-//   read (I/O thread) ──► [sequencer] ──► transform (compute, concurrent) ──► sink (compute, serial)
+//   read (I/O thread) ──► [sequencer ──► decode (compute, serial, in order)] ──► transform (compute,
+//   concurrent) ──► sink (compute, serial)
 //
 // Node contract
 // - read(item, lease): runs on the dedicated I/O thread, one call at a time, in order.
@@ -19,6 +20,9 @@
 //   of the bytes): reading far ahead buys nothing once every thread is busy.
 // - transform(item, lease) and sink(item, lease) may split() part of the item's lease
 //   off to hand it, with the buffer it covers, to an I/O task (e.g. a write).
+// - decode(item, lease), optional: runs on a compute thread, one item at a time in read
+//   order, before transform. Parsing that must walk the stream in order (a record cut
+//   by an item's end, carried to the next) lives here, so read only moves bytes.
 // - transform(item): runs on compute threads, up to transform_concurrency at once, in
 //   any order unless `ordered` (then one at a time in read order, via sequencer_node).
 //   Decompression and format conversion belong here.
@@ -52,6 +56,7 @@ struct StreamPass {
   uint64_t min_item_bytes = 1 << 20;
   uint64_t max_item_bytes = 1 << 20;
   std::function<bool(Item&, Lease&)> read;
+  std::function<void(Item&, Lease&)> decode;     // optional
   std::function<void(Item&, Lease&)> transform;  // optional
   size_t transform_concurrency = tbb::flow::unlimited;
   bool ordered = false;
@@ -168,6 +173,7 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
     // so an ordered pass runs transform and sink in the one node behind the sequencer.
     flow::function_node<Msg, Msg> transform(
         graph, pass.ordered ? size_t{flow::serial} : size_t{pass.transform_concurrency}, [&](const Msg& msg) {
+          if (pass.ordered) guarded("decode", pass.decode, *msg);
           guarded(pass.transform_name, pass.transform, *msg);
           if (pass.ordered) consume(msg);
           return msg;
@@ -177,9 +183,20 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
       return flow::continue_msg();
     });
     flow::sequencer_node<Msg> sequencer(graph, [](const Msg& msg) { return size_t(msg->seq); });
+    // The decode node rejects while busy, so it pulls the sequencer's next item only
+    // when it is free: strictly one at a time, in read order.
+    flow::function_node<Msg, Msg, flow::rejecting> decode(graph, flow::serial, [&](const Msg& msg) {
+      guarded("decode", pass.decode, *msg);
+      return msg;
+    });
     if (pass.ordered) {
       flow::make_edge(source, sequencer);
       flow::make_edge(sequencer, transform);
+    } else if (pass.decode) {
+      flow::make_edge(source, sequencer);
+      flow::make_edge(sequencer, decode);
+      flow::make_edge(decode, transform);
+      flow::make_edge(transform, sink);
     } else {
       flow::make_edge(source, transform);
       flow::make_edge(transform, sink);
