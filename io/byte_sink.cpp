@@ -4,6 +4,7 @@
 #include <unistd.h>
 #include <zstd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <random>
@@ -90,7 +91,9 @@ void ByteSink::flush_buffer() {
 
 void ByteSink::write(const void* bytes, size_t n) {
   const char* p = static_cast<const char*>(bytes);
-  if (!zstd_ && n >= buffer_.size()) {  // large blocks skip the copy
+  // Large blocks (pre-encoded batches) skip the copy: the writing thread only hands
+  // them to the kernel.
+  if (!zstd_ && n >= std::min(buffer_.size(), direct_write_bytes)) {
     flush_buffer();
     write_file(p, n);
     flushed_ += n;

@@ -17,6 +17,8 @@ namespace qemflow::io {
 class ByteSink {
  public:
   static constexpr size_t default_buffer_size = size_t{4} << 20;
+  // write() of at least this many bytes goes straight to the file (no compression).
+  static constexpr size_t direct_write_bytes = size_t{256} << 10;
 
   // zstd_level <= 0 means no compression.
   ByteSink(const std::filesystem::path& path, int zstd_level,
