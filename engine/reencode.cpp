@@ -13,7 +13,7 @@ namespace qemflow::engine {
 
 namespace {
 
-constexpr uint64_t vertices_per_write = 1 << 16;
+constexpr uint64_t vertices_per_write = 1 << 18;
 
 // Binary PLY output is encoded here, on compute threads, and the I/O thread only
 // appends the bytes (DESIGN §2); other formats are still encoded by their writer on
@@ -123,10 +123,54 @@ void submit_triangles(Job& job, io::MeshWriter& writer, UninitializedVector<Tria
       job.error_handler(), n * sizeof(Triangle));
 }
 
+// Blocks held in memory, to binary PLY: pages encoded here, a few MiB at a time (few,
+// large writes), while the I/O thread writes the ones before; pages are freed as they go.
+uint64_t write_resident_triangles_encoded(Job& job, LoadedMesh& mesh, io::MeshWriter& writer) {
+  constexpr uint64_t triangles_per_write = 1 << 18;
+  const uint32_t record = mesh.block_record_size;
+  std::vector<Bytes*> pages;
+  for (auto& cell : mesh.resident_blocks)
+    for (Bytes& page : cell) pages.push_back(&page);
+  uint64_t written = 0;
+  for (size_t first = 0; first < pages.size();) {
+    size_t end = first;
+    uint64_t n = 0;
+    while (end < pages.size() && (n == 0 || n + pages[end]->size() / record <= triangles_per_write)) {
+      n += pages[end++]->size() / record;
+    }
+    const uint64_t bytes_needed = n * io::ply_triangle_bytes;
+    Lease lease = job.governor().acquire(job.owner("triangle writes"), bytes_needed, bytes_needed,
+                                         [&job] { return job.stopped(); });
+    job.check();
+    UninitializedVector<char> bytes(bytes_needed);
+    char* out = bytes.data();
+    uint64_t max_index = 0;
+    for (size_t p = first; p < end; ++p) {
+      Bytes& page = *pages[p];
+      const uint64_t count = page.size() / record;
+      max_index = std::max(max_index, encode_block_triangles(page.data(), count, record, out));
+      out += count * io::ply_triangle_bytes;
+      mesh.resident_blocks_lease.shrink_to(mesh.resident_blocks_lease.bytes() -
+                                           std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
+      page = Bytes();
+    }
+    submit_encoded_triangles(job, writer, std::move(bytes), n, max_index, std::move(lease));
+    written += n;
+    first = end;
+    job.progress(0.9 + 0.1 * double(first) / double(pages.size()), "write");
+  }
+  job.io().drain();
+  job.check();
+  mesh.resident_blocks.clear();
+  mesh.resident_blocks_lease.release();
+  return written;
+}
+
 // Blocks held in memory (triangle records, the loader's resident_blocks): each page
 // widened to Triangles here while the I/O thread writes the one before; pages are
 // freed as they go.
 uint64_t write_resident_triangles(Job& job, LoadedMesh& mesh, io::MeshWriter& writer) {
+  if (encodes_here(writer)) return write_resident_triangles_encoded(job, mesh, writer);
   uint64_t written = 0, pages = 0, done = 0;
   for (const auto& cell : mesh.resident_blocks) pages += cell.size();
   for (auto& cell : mesh.resident_blocks) {
@@ -135,18 +179,6 @@ uint64_t write_resident_triangles(Job& job, LoadedMesh& mesh, io::MeshWriter& wr
       Lease lease = job.governor().acquire(job.owner("triangle writes"), n * sizeof(Triangle), n * sizeof(Triangle),
                                            [&job] { return job.stopped(); });
       job.check();
-      if (encodes_here(writer)) {
-        Lease bytes_lease = lease.split(n * io::ply_triangle_bytes);
-        lease.release();
-        UninitializedVector<char> bytes(n * io::ply_triangle_bytes);
-        uint64_t max_index = encode_block_triangles(page.data(), n, mesh.block_record_size, bytes.data());
-        mesh.resident_blocks_lease.shrink_to(mesh.resident_blocks_lease.bytes() - std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
-        page = Bytes();
-        submit_encoded_triangles(job, writer, std::move(bytes), n, max_index, std::move(bytes_lease));
-        written += n;
-        job.progress(0.9 + 0.1 * double(++done) / double(pages), "write");
-        continue;
-      }
       UninitializedVector<Triangle> triangles(n);
       unpack_block_triangles(page.data(), n, mesh.block_record_size, triangles.data());
       mesh.resident_blocks_lease.shrink_to(mesh.resident_blocks_lease.bytes() - std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
