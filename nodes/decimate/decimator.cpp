@@ -102,12 +102,15 @@ struct PatchDecimator::Scratch {
   std::vector<std::pair<uint32_t, uint32_t>> na, nb;
   struct Option {
     EdgeKey key;
-    uint32_t other;
+    uint32_t other, corner, twin;
+    bool exact;         // key.cost is the edge's cost, not only its quadric part (a lower bound)
     bool has_position;  // the cost was computed just now: `position` is the edge's
     Vec3 position;
   };
   std::vector<Option> options;
   std::vector<FanEdge> fan;
+  std::vector<Triangle3> moved;  // deviation(): the collapsed fan
+  std::vector<double> areas;
 };
 
 PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : params_(params) {
@@ -425,59 +428,116 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   const std::span<const uint32_t> corners = corners_of(v);
   fan_neighbors(v, corners, s.fan);
   s.options.clear();
+  const bool charged = params_.deviation_weight > 0.0;
   for (const auto& [w, corner, twin] : s.fan) {
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
-    Vec3 position;
-    bool has_position = false;
-    const double cost = edge_cost(v, w, corner, twin, position, has_position);
+    // Unknown costs start from their quadric part, a lower bound of the cost: the
+    // deviation part is computed only for options that could still win.
+    Vec3 position{};
+    const double known = cached_cost(corner, twin);
+    const bool exact = !std::isnan(known) || !charged;
+    const double cost = !std::isnan(known) ? known : quadric_cost(v, w, corner, twin, position);
     if (cost == kSkipEdge) continue;
     const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
-    if (key < bound) s.options.push_back({key, w, has_position, position});
+    if (key < bound) s.options.push_back({key, w, corner, twin, exact, std::isnan(known), position});
   }
-  std::sort(s.options.begin(), s.options.end(),
-            [](const Scratch::Option& x, const Scratch::Option& y) { return x.key < y.key; });
-  if (cut && !near_touched_only && !s.options.empty() && *cut < s.options.front().key) {
-    // Every edge at v is above the round's known cut, so v's best edge is too: it can
-    // neither be collapsed nor block a candidate this round. Left stale (no best, so
-    // no LME) and refreshed in full by a later round.
-    dirty_[v] = kDirtyStale;
-    return;
-  }
-  for (const auto& o : s.options) {
-    // The same function of the same inputs as edge_cost's position: the same bits.
-    const Vec3 p = o.has_position ? o.position : edge_position(v, o.other);
-    if (collapse_valid(v, corners, o.other, p, s)) {
-      best_[v] = o.other;
-      best_cost_[v] = o.key.cost;
-      return;
+  // The smallest valid key. An option whose key is only a lower bound gets its exact
+  // cost when it is the smallest left; an exact one is checked for validity when it is
+  // the smallest left, so the first valid one wins (keys of distinct edges differ).
+  bool checked = false;  // some edge at v was checked (and found invalid)
+  while (!s.options.empty()) {
+    size_t i = 0;
+    for (size_t j = 1; j < s.options.size(); ++j)
+      if (s.options[j].key < s.options[i].key) i = j;
+    Scratch::Option& o = s.options[i];
+    if (!o.exact) {
+      o.key.cost = edge_cost(v, o.other, o.corner, o.twin, o.key.cost, o.position, s);
+      o.exact = true;
+      if (o.key.cost != kSkipEdge && o.key < bound) continue;
+    } else {
+      if (cut && !near_touched_only && !checked && *cut < o.key) {
+        // Every edge at v is above the round's known cut (the smallest exact cost is,
+        // and the others' lower bounds are not below it), so v's best edge is too: it
+        // can neither be collapsed nor block a candidate this round. Left stale (no
+        // best, so no LME) and refreshed in full by a later round.
+        dirty_[v] = kDirtyStale;
+        return;
+      }
+      checked = true;
+      // The same function of the same inputs as quadric_cost's position: the same bits.
+      const Vec3 p = o.has_position ? o.position : edge_position(v, o.other);
+      if (collapse_valid(v, corners, o.other, p, s)) {
+        best_[v] = o.other;
+        best_cost_[v] = o.key.cost;
+        return;
+      }
     }
+    o = s.options.back();
+    s.options.pop_back();
   }
 }
 
-double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin,
-                                 Vec3& position, bool& has_position) {
-  // The cost depends only on both endpoints' quadrics and positions, which change
-  // only at a collapse's kept vertex, whose edges' corners collapse() resets: a cached
-  // value is the value recomputing would give, bit for bit (both ends and both corners
-  // of an edge compute the same).
-  std::atomic_ref<double> cached(corner_cost_[corner]);
-  const double known = cached.load(std::memory_order_relaxed);
-  if (!std::isnan(known)) return known;
-  if (twin != kNone) {
-    const double known_twin = std::atomic_ref<double>(corner_cost_[twin]).load(std::memory_order_relaxed);
-    if (!std::isnan(known_twin)) {
-      cached.store(known_twin, std::memory_order_relaxed);
-      return known_twin;
-    }
-  }
+double PatchDecimator::cached_cost(uint32_t corner, uint32_t twin) const {
+  // The cost depends only on both endpoints' quadrics, positions and faces (with their
+  // vertices' positions). Quadrics and positions change only at a collapse's kept
+  // vertex, whose edges' corners collapse() resets; faces change only within the kept
+  // vertex's first ring (the touched vertices), whose faces' corners prepare() resets
+  // when the cost has a deviation charge. So a cached value is the value recomputing
+  // would give, bit for bit (both ends and both corners of an edge compute the same).
+  const double known = std::atomic_ref<double>(const_cast<double&>(corner_cost_[corner])).load(std::memory_order_relaxed);
+  if (!std::isnan(known) || twin == kNone) return known;
+  return std::atomic_ref<double>(const_cast<double&>(corner_cost_[twin])).load(std::memory_order_relaxed);
+}
+
+double PatchDecimator::quadric_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin,
+                                    Vec3& position) {
   const Vec3 p = edge_position(v, w);
   position = p;
-  has_position = true;
   double cost = quadric_error(quadric_[v] + quadric_[w], p);
-  if (!std::isfinite(cost) || !std::isfinite(p[0] + p[1] + p[2])) cost = kSkipEdge;
-  cached.store(cost, std::memory_order_relaxed);
+  const bool finite = std::isfinite(cost) && std::isfinite(p[0] + p[1] + p[2]);
+  if (!finite) cost = kSkipEdge;
+  // Without a charge the quadric part is the cost; a skipped edge stays skipped.
+  if (!finite || params_.deviation_weight <= 0.0) {
+    std::atomic_ref<double>(corner_cost_[corner]).store(cost, std::memory_order_relaxed);
+    if (twin != kNone) std::atomic_ref<double>(corner_cost_[twin]).store(cost, std::memory_order_relaxed);
+  }
+  return cost;
+}
+
+double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin,
+                                 double quadric, const Vec3& position, Scratch& s) {
+  const bool v_lo = vgid_[v] < vgid_[w];
+  double cost = quadric + params_.deviation_weight * (v_lo ? deviation(v, w, position, s)
+                                                           : deviation(w, v, position, s));
+  if (!std::isfinite(cost)) cost = kSkipEdge;
+  std::atomic_ref<double>(corner_cost_[corner]).store(cost, std::memory_order_relaxed);
   if (twin != kNone) std::atomic_ref<double>(corner_cost_[twin]).store(cost, std::memory_order_relaxed);
   return cost;
+}
+
+double PatchDecimator::deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const {
+  // a has the smaller global id, so both ends of the edge compute the same bits. Corner
+  // lists are not in a canonical order after collapses (nor equal to a patch's), so
+  // each endpoint's area is summed in ascending order of the face areas (the fan's
+  // nearest distance is a minimum: no order).
+  s.moved.clear();
+  double area[2] = {0.0, 0.0};
+  for (int side = 0; side < 2; ++side) {
+    const uint32_t other = side == 0 ? b : a;
+    s.areas.clear();
+    for (uint32_t c : corners_of(side == 0 ? a : b)) {
+      const auto& t = fv_[c / 3];
+      const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
+      s.areas.push_back(0.5 * std::sqrt(dot(n, n)));
+      if (contains(t, other)) continue;  // removed by the collapse
+      Triangle3 moved;
+      for (int k = 0; k < 3; ++k) moved[k] = (t[k] == a || t[k] == b) ? p : pos_[t[k]];
+      s.moved.push_back(moved);
+    }
+    std::sort(s.areas.begin(), s.areas.end());
+    for (double x : s.areas) area[side] += x;
+  }
+  return collapse_deviation(pos_[a], area[0], pos_[b], area[1], s.moved);
 }
 
 void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners,
@@ -584,6 +644,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   for (uint32_t v = 0; v < nv; ++v)
     if (touched_[v]) touched_list.push_back(v);
   tbb::enumerable_thread_specific<Scratch> scratch;
+  const bool charged = params_.deviation_weight > 0.0;
   // Touched vertices (the last collapses' first rings; only they can have lost a face):
   // compact their lists, update their border flags, and mark them and their second
   // ring dirty (edges to a touched vertex may have changed validity).
@@ -592,8 +653,14 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     compact_list(v);
     update_border(v, scratch.local());
     raise_flag(dirty_[v]);
-    for (uint32_t c : corners_of(v))
+    for (uint32_t c : corners_of(v)) {
       for (uint32_t x : fv_[c / 3]) raise_flag(dirty_[x]);
+      // v's faces changed, so did the deviation charge of every edge at v: reset the
+      // face's three corners (both corners of v's edges lie in faces of v).
+      if (charged)
+        for (uint32_t k = c - c % 3; k < c - c % 3 + 3; ++k)
+          std::atomic_ref<double>(corner_cost_[k]).store(kUnknownCost, std::memory_order_relaxed);
+    }
   });
   for (uint32_t v = 0; v < nv; ++v)
     if (dirty_[v]) dirty_list.push_back(v);
@@ -606,7 +673,9 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     const uint32_t v = dirty_list[i];
     // A stale vertex has no cached best.
     const bool stale = dirty_[v] == kDirtyStale;
-    if (stale && keep_stale && !touched_[v]) return;
+    // With a deviation charge, an edge's cost also changes when a neighbour is touched
+    // (which is why v is dirty): only the pure quadric cost stays while v is untouched.
+    if (stale && keep_stale && !touched_[v] && !charged) return;
     dirty_[v] = 1;
     refresh_best(v, scratch.local(), !touched_[v] && !stale, cut);
     if (dirty_[v] == kDirtyStale && !deferred.load(std::memory_order_relaxed))
@@ -662,6 +731,8 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
 }
 
 void PatchDecimator::set_params(const DecimateParams& params) {
+  if (params.deviation_weight != params_.deviation_weight)
+    std::fill(corner_cost_.begin(), corner_cost_.end(), kUnknownCost);
   params_ = params;
   std::fill(dirty_.begin(), dirty_.end(), uint8_t{1});
   std::fill(touched_.begin(), touched_.end(), uint8_t{1});

@@ -18,14 +18,16 @@
 //     apply_cut(cut)   collapse every candidate (owned or not) whose key <= cut.
 //   The cut comes from plan_epoch()/exact_cut() in cut.hpp, from summed summaries; the
 //   epoch schedule (one global decision per E rounds) is in cut.hpp / simplify.hpp.
-// - Total order of edges: key = (cost, smaller global id, larger global id).
+// - Total order of edges: key = (cost, smaller global id, larger global id), where
+//   cost = (Q_a + Q_b)(p) + deviation_weight * collapse_deviation (quadric.hpp) at the
+//   collapse position p.
 // - best(v): the smallest-key valid edge at v. LME: an edge that is best at both ends.
 //   Candidate: an LME smaller than every other LME with an endpoint within one ring
 //   of its endpoints. Candidates are then >= 2 rings apart, so their collapses touch
 //   disjoint face sets and the round's result does not depend on collapse order.
 // - Decision radius (rings around an edge's endpoints; out-of-core halos are sized
-//   from it): validity of (a,b) reads the faces of a and b and their vertices'
-//   positions (1 ring); best(v) reads the validity of all edges at v (2 rings); LME
+//   from it): validity and cost of (a,b) read the faces of a and b and their vertices'
+//   positions (1 ring; the cost's deviation charge, quadric.hpp); best(v) reads the validity of all edges at v (2 rings); LME
 //   status of (a,b) reads best(a), best(b) (2 rings); candidate status reads LME status
 //   of edges with an endpoint within one ring (1 + 1 + 2 = 4 rings).
 //   kDecisionRadius = 4. Quadrics are per-vertex state carried with the vertex
@@ -98,6 +100,12 @@ struct DecimateParams {
   // drop them (counted in dropped_faces()) rather than pass them through with their
   // vertices locked, which would pin their neighbourhoods for good.
   bool drop_repeated_vertex_faces = true;
+  // Weight of the deviation charge added to an edge's quadric cost (quadric.hpp,
+  // collapse_deviation): the endpoints' share of area times their squared distance to
+  // the collapsed fan. The quadric alone prices cutting off a tip or a thin rim by its
+  // small original area, so greedy order removes such features early and the largest
+  // error (Hausdorff) grows; 0 turns the charge off (pure quadric cost).
+  double deviation_weight = 10.0;
 };
 
 struct PatchInput {
@@ -225,9 +233,16 @@ class PatchDecimator {
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut);
   void update_border(uint32_t v, Scratch& s);
   void fan_neighbors(uint32_t v, std::span<const uint32_t> corners, std::vector<FanEdge>& out) const;
-  // The cached cost of edge (v, w); when it is computed here, also its position.
-  double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin, Vec3& position,
-                   bool& has_position);
+  // The cached cost of the edge at `corner` (or its twin), NaN when unknown.
+  double cached_cost(uint32_t corner, uint32_t twin) const;
+  // Quadric part of edge (v, w)'s cost (a lower bound of edge_cost, the charge being
+  // >= 0) and the position; kSkipEdge, also cached, when either is not finite.
+  double quadric_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin, Vec3& position);
+  // The edge's cost, cached in both corners: quadric part (`quadric`, at `position`)
+  // + deviation_weight * deviation.
+  double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin, double quadric,
+                   const Vec3& position, Scratch& s);
+  double deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const;
   bool collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, uint32_t b, const Vec3& p,
                       Scratch& s) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace qemflow::nodes {
 namespace {
@@ -85,6 +86,50 @@ Vec3 collapse_position(const Quadric& Q, const Vec3& lo, const Vec3& hi) {
     }
   }
   return {x[0], x[1], x[2]};
+}
+
+double point_triangle_distance2(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c) {
+  // Ericson, Real-Time Collision Detection 5.1.5: the Voronoi region of x decides
+  // which feature (vertex, edge, face) is closest.
+  auto at = [](const Vec3& o, const Vec3& u, double s, const Vec3& v, double t) {
+    return Vec3{o[0] + s * u[0] + t * v[0], o[1] + s * u[1] + t * v[1], o[2] + s * u[2] + t * v[2]};
+  };
+  auto dist2 = [&](const Vec3& y) {
+    const Vec3 d = sub(x, y);
+    return dot(d, d);
+  };
+  const Vec3 ab = sub(b, a), ac = sub(c, a), ax = sub(x, a);
+  const double d1 = dot(ab, ax), d2 = dot(ac, ax);
+  if (d1 <= 0.0 && d2 <= 0.0) return dist2(a);
+  const Vec3 bx = sub(x, b);
+  const double d3 = dot(ab, bx), d4 = dot(ac, bx);
+  if (d3 >= 0.0 && d4 <= d3) return dist2(b);
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return dist2(at(a, ab, d1 / (d1 - d3), ac, 0.0));
+  const Vec3 cx = sub(x, c);
+  const double d5 = dot(ab, cx), d6 = dot(ac, cx);
+  if (d6 >= 0.0 && d5 <= d6) return dist2(c);
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return dist2(at(a, ab, 0.0, ac, d2 / (d2 - d6)));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
+    const Vec3 bc = sub(c, b);
+    return dist2(at(b, bc, (d4 - d3) / ((d4 - d3) + (d5 - d6)), bc, 0.0));
+  }
+  const double sum = va + vb + vc;
+  if (!(sum > 0.0)) return std::min({dist2(a), dist2(b), dist2(c)});  // degenerate
+  return dist2(at(a, ab, vb / sum, ac, vc / sum));
+}
+
+double collapse_deviation(const Vec3& a, double area_a, const Vec3& b, double area_b,
+                          std::span<const Triangle3> fan) {
+  if (fan.empty()) return 0.0;
+  double nearest_a = std::numeric_limits<double>::infinity(), nearest_b = nearest_a;
+  for (const Triangle3& t : fan) {
+    nearest_a = std::min(nearest_a, point_triangle_distance2(a, t[0], t[1], t[2]));
+    nearest_b = std::min(nearest_b, point_triangle_distance2(b, t[0], t[1], t[2]));
+  }
+  return area_a / 3.0 * nearest_a + area_b / 3.0 * nearest_b;
 }
 
 }  // namespace qemflow::nodes

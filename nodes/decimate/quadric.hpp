@@ -7,6 +7,7 @@
 // canonical order (see decimator.hpp); addition of two quadrics is commutative in
 // IEEE arithmetic, so Q_a + Q_b == Q_b + Q_a bit for bit.
 #include <array>
+#include <span>
 
 namespace qemflow::nodes {
 
@@ -42,5 +43,21 @@ double quadric_error(const Quadric& quadric, const Vec3& x);
 // eigen-directions, anchored at the edge midpoint (Lindstrom's stable fallback).
 // `lo` / `hi` are the endpoints ordered by global id so both ends compute the same.
 Vec3 collapse_position(const Quadric& quadric, const Vec3& lo, const Vec3& hi);
+
+// Squared Euclidean distance from x to the closest point of triangle (p0,p1,p2)
+// (a degenerate triangle: to its closest edge or vertex).
+double point_triangle_distance2(const Vec3& x, const Vec3& p0, const Vec3& p1, const Vec3& p2);
+
+using Triangle3 = std::array<Vec3, 3>;
+
+// The deviation charge of a collapse (a, b) -> p, in the quadrics' units (area times
+// squared distance): each endpoint stands for a third of its current faces' area
+// (`area_a`, `area_b`) and is charged that area times its squared distance to the
+// collapsed fan (`fan`: the faces of a and b that survive the collapse, with a and b
+// moved to p). The quadric sums squared distances over the original surface, so a
+// small feature (a tip, a thin rim: little area) is cheap to cut off however far the
+// surface moves; this term prices the move of the surface the current mesh stands for.
+double collapse_deviation(const Vec3& a, double area_a, const Vec3& b, double area_b,
+                          std::span<const Triangle3> fan);
 
 }  // namespace qemflow::nodes

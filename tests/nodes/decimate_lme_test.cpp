@@ -1,6 +1,6 @@
 // Local minimal edges checked against an independent brute force: on small meshes,
-// enumerate every edge, compute its collapse position and cost with the quadric
-// kernel, test validity from the definitions in decimator.hpp (link condition, no
+// enumerate every edge, compute its collapse position and cost with the quadric and
+// deviation kernels, test validity from the definitions in decimator.hpp (link condition, no
 // pocket, no interior edge between border vertices, no flip / sharp turn /
 // degeneration), and derive best edges, LMEs and the candidate set by definition.
 // The decimator's candidate set must be the same in every round of a run (which also
@@ -123,7 +123,30 @@ std::set<Key> brute_force_candidates(const BruteMesh& m, const DecimateParams& p
     const auto [a, b] = e;  // a < b: gids
     const Quadric q = m.quadric.at(a) + m.quadric.at(b);
     const Vec3 p = collapse_position(q, m.position.at(a), m.position.at(b));
-    const Key key{quadric_error(q, p), a, b};
+    // Deviation charge by its definition (decimator.hpp): each endpoint's face area
+    // (summed in ascending order), the surviving faces moved to p.
+    double area[2] = {0.0, 0.0};
+    std::vector<Triangle3> collapsed;
+    for (int side = 0; side < 2; ++side) {
+      const uint64_t x = side == 0 ? a : b, other = side == 0 ? b : a;
+      std::vector<double> areas;
+      for (size_t f : fan[x]) {
+        const auto& t = m.faces[f];
+        Vec3 o[3];
+        for (int k = 0; k < 3; ++k) o[k] = m.position.at(t[k]);
+        const Vec3 n = cross3(minus(o[1], o[0]), minus(o[2], o[0]));
+        areas.push_back(0.5 * std::sqrt(dot3(n, n)));
+        if (has(t, other)) continue;
+        Triangle3 moved;
+        for (int k = 0; k < 3; ++k) moved[k] = (t[k] == a || t[k] == b) ? p : o[k];
+        collapsed.push_back(moved);
+      }
+      std::sort(areas.begin(), areas.end());
+      for (double x_area : areas) area[side] += x_area;
+    }
+    const double deviation =
+        collapse_deviation(m.position.at(a), area[0], m.position.at(b), area[1], collapsed);
+    const Key key{quadric_error(q, p) + params.deviation_weight * deviation, a, b};
     if (!valid(a, b, p)) continue;
     for (uint64_t v : {a, b})
       if (!best.count(v) || key < best[v]) best[v] = key;

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cmath>
 #include <set>
 
 #include "nodes/decimate/simplify.hpp"
@@ -39,13 +40,17 @@ TEST(Decimate, FlatGridCollapsesToFewFacesKeepingItsBorderOnItsLines) {
     lo_x = std::min(lo_x, p[0]), hi_x = std::max(hi_x, p[0]);
     lo_y = std::min(lo_y, p[1]), hi_y = std::max(hi_y, p[1]);
   }
-  // The four corners survive and every vertex is on the square's border.
-  EXPECT_EQ(lo_x, 0.0);
-  EXPECT_EQ(hi_x, 1.0);
-  EXPECT_EQ(lo_y, 0.0);
-  EXPECT_EQ(hi_y, 1.0);
+  // The four corners survive and every vertex is on the square's border (to the
+  // rounding of the 3x3 solve: the deviation charge's rounding-level values decide
+  // among the zero-cost collapses, and some end at a corner computed, not copied).
+  const double ulps = 1e-12;
+  EXPECT_NEAR(lo_x, 0.0, ulps);
+  EXPECT_NEAR(hi_x, 1.0, ulps);
+  EXPECT_NEAR(lo_y, 0.0, ulps);
+  EXPECT_NEAR(hi_y, 1.0, ulps);
   for (const auto& p : r.points) {
-    const bool on_border = p[0] == 0.0 || p[0] == 1.0 || p[1] == 0.0 || p[1] == 1.0;
+    auto on = [&](double x, double line) { return std::abs(x - line) <= ulps; };
+    const bool on_border = on(p[0], 0.0) || on(p[0], 1.0) || on(p[1], 0.0) || on(p[1], 1.0);
     EXPECT_TRUE(on_border) << p[0] << " " << p[1];
   }
   const auto t = topology(r.points, r.triangles);
@@ -101,7 +106,8 @@ TEST(Decimate, ReportsRoundsAndKeepsOutputOrderedById) {
 }
 
 // Golden output: catches accidental changes of the in-core result (speed work must keep
-// it). Update only deliberately, with a note in the commit message.
+// it). Update only deliberately, with a note in the commit message. Last changed by the
+// deviation charge in the edge cost (DecimateParams::deviation_weight).
 TEST(Decimate, GoldenHashOfTheInCoreResult) {
   SimplifyOptions o;
   o.target_faces = 700;
@@ -114,7 +120,7 @@ TEST(Decimate, GoldenHashOfTheInCoreResult) {
   for (const auto& p : r.points)
     for (double x : p) mix(std::bit_cast<uint64_t>(x));
   EXPECT_EQ(r.triangles.size(), 700u);
-  EXPECT_EQ(hash, 15982766368019565670ull) << hash;
+  EXPECT_EQ(hash, 6497474651887636529ull) << hash;
 }
 
 TEST(Weld, MergesExactDuplicatesOnlyAndKeepsTheSmallestIndex) {
