@@ -7,7 +7,7 @@
 #
 #   bench/peers.sh [BUILD_DIR]         (default build/)
 # Environment: PEERS_MESHES  space-separated list of mesh paths and gen:FACES entries
-#                            (default: the Stanford dragon, gen:1M, gen:20M)
+#                            (default: the Stanford dragon, igea, gen:1M, gen:20M)
 #              PEERS_TOOLS   default "qemflow meshopt openmesh"
 #              PEERS_RATIOS  default "0.01 0.001"
 set -euo pipefail
@@ -26,7 +26,7 @@ peer="$work/peer_simplify"
 g++ -std=c++20 -O2 -DNDEBUG -I"$repo" "$here/peers/peer_simplify.cpp" "$build/io/libqemflow_io.a" \
   -lOpenMeshTools -lOpenMeshCore -lmeshoptimizer -lzstd -o "$peer"
 
-meshes="${PEERS_MESHES:-$repo/../shared/data/stanford-dragon.ply.zst gen:1M gen:20M}"
+meshes="${PEERS_MESHES:-$repo/../shared/data/stanford-dragon.ply.zst $repo/../shared/data/igea.ply.zst gen:1M gen:20M}"
 tools="${PEERS_TOOLS:-qemflow meshopt openmesh}"
 ratios="${PEERS_RATIOS:-0.01 0.001}"
 

@@ -21,6 +21,9 @@ constexpr double kUnknownCost = std::numeric_limits<double>::quiet_NaN();
 constexpr double kSkipEdge = std::numeric_limits<double>::infinity();
 // dirty_ value of a vertex whose refresh a round with a known cut skipped.
 constexpr uint8_t kDirtyStale = 2;
+// dirty_ value of a stale vertex next to a touched one (its edges' deviation charges
+// may have changed).
+constexpr uint8_t kDirtyStaleNearTouched = 3;
 
 Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
 Vec3 cross(const Vec3& a, const Vec3& b) {
@@ -52,6 +55,15 @@ bool contains(const std::array<uint32_t, 3>& f, uint32_t v) {
 void raise_flag(uint8_t& flag) {
   std::atomic_ref<uint8_t> f(flag);
   if (!f.load(std::memory_order_relaxed)) f.store(1, std::memory_order_relaxed);
+}
+
+// raise_flag for dirty_: 0 -> 1, kDirtyStale -> kDirtyStaleNearTouched (each value has
+// one successor, so concurrent relaxed stores agree).
+void raise_dirty(uint8_t& flag) {
+  std::atomic_ref<uint8_t> f(flag);
+  const uint8_t old = f.load(std::memory_order_relaxed);
+  if (old == 0) f.store(1, std::memory_order_relaxed);
+  if (old == kDirtyStale) f.store(kDirtyStaleNearTouched, std::memory_order_relaxed);
 }
 
 template <class F>
@@ -654,7 +666,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     update_border(v, scratch.local());
     raise_flag(dirty_[v]);
     for (uint32_t c : corners_of(v)) {
-      for (uint32_t x : fv_[c / 3]) raise_flag(dirty_[x]);
+      for (uint32_t x : fv_[c / 3]) raise_dirty(dirty_[x]);
       // v's faces changed, so did the deviation charge of every edge at v: reset the
       // face's three corners (both corners of v's edges lie in faces of v).
       if (charged)
@@ -672,10 +684,11 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   parallel_over(dirty_list.size(), [&](size_t i) {
     const uint32_t v = dirty_list[i];
     // A stale vertex has no cached best.
-    const bool stale = dirty_[v] == kDirtyStale;
-    // With a deviation charge, an edge's cost also changes when a neighbour is touched
-    // (which is why v is dirty): only the pure quadric cost stays while v is untouched.
-    if (stale && keep_stale && !touched_[v] && !charged) return;
+    const bool stale = dirty_[v] >= kDirtyStale;
+    // With a deviation charge, an edge's cost also changes when a neighbour is touched:
+    // only then do v's costs not stay while v is untouched.
+    if (stale && keep_stale && !touched_[v] && !(charged && dirty_[v] == kDirtyStaleNearTouched))
+      return;
     dirty_[v] = 1;
     refresh_best(v, scratch.local(), !touched_[v] && !stale, cut);
     if (dirty_[v] == kDirtyStale && !deferred.load(std::memory_order_relaxed))
@@ -688,7 +701,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     has_stale_ = true;
   }
   for (uint32_t v : dirty_list) {
-    if (dirty_[v] != kDirtyStale) dirty_[v] = 0;
+    dirty_[v] = dirty_[v] >= kDirtyStale ? kDirtyStale : 0;
     touched_[v] = 0;
   }
   parallel_over(nv, [&](size_t v) {
