@@ -65,6 +65,25 @@ TEST(SimplifyOoc, GeneratedMeshAllTheWayOutOfCoreEqualsInCore) {
   expect_partition_invariant(mesh, "--target-faces 301", {2, 4, 8, 16}, 1);
 }
 
+TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  run_ok(q() + " gen " + mesh.string() + " --faces 12000 --quiet");
+  expect_partition_invariant(mesh, "--target-faces 301 --deviation-weight 0", {4}, 1);
+  // The weight reaches the decimator: plain QEM and the default give different meshes.
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "plain.ply").string() +
+         " --target-faces 301 --in-core --quiet --deviation-weight 0");
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "charged.ply").string() + " --target-faces 301 --in-core --quiet");
+  EXPECT_NE(slurp(dir / "plain.ply"), slurp(dir / "charged.ply"));
+  std::string out;
+  EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "bad.ply").string() +
+                            " --ratio 0.1 --deviation-weight -1 --quiet",
+                        &out),
+            2)
+      << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "bad.ply"));
+}
+
 TEST(SimplifyOoc, Generated200kMeshEqualsInCore) {
   TempDir dir;
   const auto mesh = dir / "blob.ply";
