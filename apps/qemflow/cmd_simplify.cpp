@@ -214,15 +214,12 @@ void add_simplify_command(CLI::App& root, Run& run) {
   cmd->add_option("--deviation-weight", args->params.deviation_weight,
                   "tuning: weight of the deviation charge (keeps thin tips and rims; 0 is plain "
                   "QEM, about half the CPU time)")
-      ->capture_default_str()
-      ->check([](const std::string& text) {
-        double weight = -1.0;
-        return CLI::detail::lexical_cast(text, weight) && weight >= 0.0 ? std::string()
-                                                                         : std::string("must be a number, 0 or more");
-      });
+      ->capture_default_str();
   cmd->callback([&run, args, target, ratio] {
     if (target->count() + ratio->count() != 1)
       throw CLI::ValidationError("simplify", "give exactly one of --target-faces and --ratio");
+    if (!(args->params.deviation_weight >= 0.0))
+      throw CLI::ValidationError("--deviation-weight", "must be 0 or more");
     run = [args] { run_simplify(*args); };
   });
 }
