@@ -10,6 +10,7 @@
 #include "engine/reencode.hpp"
 #include "gen/generator.hpp"
 #include "io/indexed_mesh.hpp"
+#include "reencode_refusal.hpp"
 #include "test_support.hpp"
 #include "util/error.hpp"
 
@@ -101,20 +102,8 @@ TEST(BulkIo, BadBinaryInputFailsWithTheReadersMessageAndLeavesNothing) {
       expected = e.what();
     }
     ASSERT_NE(expected.find(c.problem), std::string::npos) << expected;
-    for (bool out_of_core : {false, true}) {
-      Governor governor(64ull << 20, 0);
-      ReencodeOptions options{.input = dir / "bad.ply", .output = dir / "out.ply", .scratch_dir = scratch_dir.path()};
-      options.load.force_out_of_core = out_of_core;
-      try {
-        run_reencode(governor, options, {});
-        ADD_FAILURE() << "accepted";
-      } catch (const Error& e) {
-        EXPECT_EQ(e.kind(), ErrorKind::bad_input) << e.what();
-        EXPECT_EQ(std::string(e.what()), expected);
-      }
-      EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
-      EXPECT_TRUE(std::filesystem::is_empty(scratch_dir.path()));
-    }
+    testing::expect_reencode_refused(dir / "bad.ply", dir / "out.ply", scratch_dir.path(),
+                                     [&](const Error& e) { EXPECT_EQ(std::string(e.what()), expected); });
   }
 }
 
