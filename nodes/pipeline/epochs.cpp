@@ -13,6 +13,7 @@
 #include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/parallel_sort.h>
 
+#include "config/size.hpp"
 #include "engine/process_memory.hpp"
 #include "util/error.hpp"
 
@@ -66,10 +67,29 @@ struct Box {
       if (p[k] < min[k] || p[k] > max[k]) return false;
     return true;
   }
+  // Half-open: a point on a shared face of two adjacent regions is in exactly one.
+  bool contains_half_open(const Point& p) const {
+    for (int k = 0; k < 3; ++k)
+      if (!(p[k] >= min[k] && p[k] < max[k])) return false;
+    return true;
+  }
+  Box intersected(const Box& b) const {
+    Box r;
+    for (int k = 0; k < 3; ++k) {
+      r.min[k] = std::max(min[k], b.min[k]);
+      r.max[k] = std::min(max[k], b.max[k]);
+    }
+    return r;
+  }
   bool meets(const Box& b) const {
     for (int k = 0; k < 3; ++k)
       if (b.max[k] < min[k] || b.min[k] > max[k]) return false;
     return true;
+  }
+  static Box unbounded() {
+    Box b;
+    std::swap(b.min, b.max);
+    return b;
   }
   Box grown(double margin) const {
     Box b = *this;
@@ -370,18 +390,53 @@ struct PatchPlan {
   uint32_t rounds = 0;
 };
 
+// What one patch owns: the faces of `owner` whose centroid lies in `region`
+// (half-open). Normally the whole owner (region unbounded); a smaller region when the
+// owner's patch (owned + halo) would not fit the largest lease a patch may hold: then
+// the owner runs as several parts, which is just a finer partition (same output).
+struct PatchPart {
+  uint32_t owner = 0;
+  bool whole = true;
+  Box region;  // when not whole
+};
+
+// Face records the part does not own carry this owner, so "owner == p" means "owned by
+// this part" in build_patch.
+inline constexpr uint32_t kNotInPart = std::numeric_limits<uint32_t>::max();
+
 struct Gathered {
   std::vector<FaceRecord> faces;
   std::vector<VertexRecord> vertices;  // sorted by gid, unique
+  uint64_t found_faces = 0;  // faces the gather kept (= faces.size() unless over_limit)
+  uint64_t owned_faces = 0;  // of them, owned by the part
+  bool over_limit = false;   // more than the limit: nothing is held, found_faces is the need
 };
 
-// Loads patch p's owned faces and every face of other owners with a vertex in `box`.
-Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state, uint32_t p, const Box& box,
-                         bool everything) {
+// The chunks a part's gather reads: its owner's chunks that may hold owned faces, and
+// every chunk meeting the halo box.
+bool gather_reads(const ChunkMeta& meta, const PatchPart& part, const Box& halo_box) {
+  if (meta.owner == part.owner && part.whole) return true;
+  return meta.box.meets(halo_box);
+}
+
+// Upper bound of what load_candidates(state, part, box) gathers, from the chunk metas.
+uint64_t gather_bound(const MeshState& state, const PatchPart& part, const Box& box) {
+  uint64_t most = 0;
+  for (const auto& c : state.chunks)
+    if (gather_reads(c.meta, part, box)) most += c.meta.faces;
+  return most;
+}
+
+// Loads the part's owned faces and every other face with a vertex in `box`; with
+// `part` null, everything (the in-core finish). At most `limit_faces` are held: a
+// gather that finds more keeps counting but holds nothing (over_limit), so a patch
+// never materializes beyond its lease.
+Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state, const PatchPart* part,
+                         const Box& box, uint64_t limit_faces = std::numeric_limits<uint64_t>::max()) {
   std::vector<FrameRef> frames;
   uint64_t most_faces = 0, most_blob_bytes = 0;
   for (const auto& c : state.chunks)
-    if (everything || c.meta.owner == p || c.meta.box.meets(box)) {
+    if (!part || gather_reads(c.meta, *part, box)) {
       frames.push_back(c.frame);
       most_faces += c.meta.faces;
       most_blob_bytes += c.frame.count;
@@ -389,24 +444,33 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state
   // Reserved up front at upper bounds: growth by doubling would hold the old and the new
   // arrays at once (a spike outside the patch lease); untouched reserved pages cost no RSS.
   Gathered g;
-  g.faces.reserve(most_faces);
+  g.faces.reserve(std::min(most_faces, limit_faces));
   g.vertices.reserve(most_blob_bytes / sizeof(VertexRecord) + 1);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
-        if (everything || header.tag == p) return;
+        if (!part) return;
+        const bool owners = header.tag == part->owner;
+        if (owners && part->whole) return;
         const BlobView v = view_blob(records.data(), records.size());
-        // Per vertex: inside the box? (A chunk wholly inside is kept as it is.) Corners
-        // are found in a compact gid array, and the kept faces' vertices are marked.
+        // Per vertex: inside the box? (Another owner's chunk wholly inside is kept as it
+        // is.) Corners are found in a compact gid array, and the kept faces' vertices
+        // are marked. The owner's faces are owned when their centroid is in the region.
         std::vector<uint64_t> gids(v.vertices);
         std::vector<uint8_t> inside(v.vertices), used(v.vertices, 0);
-        bool all_inside = true;
+        bool all_inside = true, any_inside = false;
         for (uint64_t i = 0; i < v.vertices; ++i) {
           gids[i] = v.vertex[i].gid;
           inside[i] = box.contains(v.vertex[i].position);
           all_inside = all_inside && inside[i];
+          any_inside = any_inside || inside[i];
         }
-        if (all_inside) return;
+        if (all_inside && !owners) return;
+        if (!any_inside && !owners) {  // most chunks the region's bounds meet
+          Bytes empty = make_blob({}, {});
+          records.swap(empty);
+          return;
+        }
         auto index_of = [&](uint64_t gid) {
           const auto it = std::lower_bound(gids.begin(), gids.end(), gid);
           if (it == gids.end() || *it != gid) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
@@ -416,8 +480,17 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state
         for (uint64_t i = 0; i < v.faces; ++i) {
           const FaceRecord& f = v.face[i];
           const size_t a = index_of(f.v[0]), b = index_of(f.v[1]), c = index_of(f.v[2]);
-          if (!(inside[a] || inside[b] || inside[c])) continue;
+          bool owned = false;
+          if (owners) {
+            Point centroid{};
+            for (size_t corner : {a, b, c})
+              for (int k = 0; k < 3; ++k) centroid[k] += v.vertex[corner].position[k];
+            for (int k = 0; k < 3; ++k) centroid[k] /= 3;
+            owned = part->region.contains_half_open(centroid);
+          }
+          if (!owned && !(inside[a] || inside[b] || inside[c])) continue;
           kept.push_back(f);
+          if (!owned) kept.back().owner = kNotInPart;
           used[a] = used[b] = used[c] = 1;
         }
         std::vector<VertexRecord> verts;
@@ -428,10 +501,20 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state
       },
       [&](const FrameHeader&, Bytes& records, Lease&) {
         const BlobView v = view_blob(records.data(), records.size());
+        g.found_faces += v.faces;
+        if (part)
+          for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part->owner;
+        if (g.found_faces > limit_faces) g.over_limit = true;
+        if (g.over_limit) return;
         g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
         g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
       },
       0);
+  if (g.over_limit) {
+    release_memory(g.faces);
+    release_memory(g.vertices);
+    return g;
+  }
   // Keys are unique (face ids; a gid's records are equal copies), so a parallel sort
   // gives the same arrays. In the job's arena: --threads holds here too.
   job.arena().execute([&] {
@@ -664,6 +747,10 @@ struct Runner {
   std::vector<double> owner_edge;  // mean edge length of the owned faces
   std::vector<uint64_t> owner_faces;
 
+  // The parts each owner ran as in the last pass (one whole part unless it was split):
+  // the next pass starts from them, so a split is found once, not every epoch.
+  std::vector<std::vector<PatchPart>> owner_parts;
+
   void index_state(const MeshState& state) {
     owner_box.assign(patches, Box{});
     std::vector<double> edge_sum(patches, 0.0);
@@ -676,73 +763,147 @@ struct Runner {
     owner_edge.assign(patches, 0.0);
     for (uint32_t p = 0; p < patches; ++p)
       owner_edge[p] = owner_faces[p] ? edge_sum[p] / double(3 * owner_faces[p]) : 0.0;
+    owner_parts.resize(patches);
+    for (uint32_t p = 0; p < patches; ++p)
+      if (owner_parts[p].empty()) owner_parts[p].push_back({p});
   }
 
-  Lease patch_lease(uint64_t faces) {
-    // A quarter of the capacity stays free for the gather's frame streams (they take
-    // their own leases while this one is held: no hold-and-wait on the whole budget).
-    const uint64_t want = std::min<uint64_t>(faces * kPatchBytesPerFace, job.governor().capacity() / 4 * 3);
-    return job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
+  // The most a patch may hold: a quarter of the capacity stays free for the gather's
+  // frame streams and the export's chunks (they take their own leases, or none, while
+  // this one is held: no hold-and-wait on the whole budget).
+  uint64_t patch_cap() const { return job.governor().capacity() / 4 * 3; }
+
+  // Where the part's owned faces are: the owner's box, cut to the region. (A vertex of
+  // an owned face may lie outside it, by less than an edge: the halo margin covers it,
+  // and build_patch's margin check catches a margin too small.)
+  Box owned_box(const PatchPart& part) const {
+    return part.whole ? owner_box[part.owner] : owner_box[part.owner].intersected(part.region);
+  }
+
+  // Runs one part: gather under a lease of at most patch_cap(), build with the halo,
+  // run the plan, summarize, export. False, with nothing run or kept, when the gather
+  // found more faces than the lease holds.
+  bool run_part(const MeshState& state, MeshState* next, const PatchPart& part, const PatchPlan& plan,
+                const DecimateParams& params, std::vector<std::vector<Candidate>>* candidates, uint64_t needed,
+                RoundSummary& total) {
+    const uint32_t p = part.owner;
+    for (;;) {
+      job.check();
+      const double margin = (rings + 2) * owner_edge[p] * margin_factor[p];
+      const Box box = owned_box(part).grown(margin);
+      // The gather's upper bound from the chunk metas: when it fits, the gather cannot
+      // go over; the lease is trimmed to what was found.
+      const uint64_t want = std::min(gather_bound(state, part, box) * kPatchBytesPerFace, patch_cap());
+      Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
+      job.check();
+      Gathered g = load_candidates(job, scratch, state, &part, box, lease.bytes() / kPatchBytesPerFace);
+      stats.gathered_faces_total += g.found_faces;
+      if (g.owned_faces == 0) return true;  // a region without owned faces
+      if (g.over_limit) {
+        if (g.owned_faces <= kSmallestPart) refuse_part(g);
+        return false;
+      }
+      lease.shrink_to(g.faces.size() * kPatchBytesPerFace);
+      const uint64_t owned_faces = g.owned_faces;
+      BuiltPatch built;
+      job.arena().execute([&] { built = build_patch(g, p, rings, false); });
+      g = {};
+      if (built.margin_too_small) {
+        margin_factor[p] *= 2;
+        ++stats.margin_redos;
+        continue;
+      }
+      stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
+      stats.patch_faces_total += built.input.faces.size();
+      stats.owned_faces_total += owned_faces;
+      bool ok = true;
+      RoundSummary summary;
+      std::vector<Candidate> owned;
+      std::optional<PatchOutput> out;
+      job.arena().execute([&] {
+        PatchDecimator d(std::move(built.input), params);
+        run_patch_plan(d, plan);
+        d.prepare_round();
+        summary = d.summarize();
+        if (candidates) owned = trim_for_exact_cut(d.owned_candidates(), needed);
+        if (summary.inexact_candidates) {
+          ok = false;
+          return;
+        }
+        if (next) {
+          out = d.extract();
+          if (out->untrusted_vertices) ok = false;
+        }
+      });
+      if (!ok) {
+        rings += 2;
+        ++stats.halo_redos;
+        stats.max_rings = std::max(stats.max_rings, rings);
+        continue;
+      }
+      total.add(summary);
+      if (candidates) (*candidates).push_back(std::move(owned));
+      if (next) export_patch(*out, p, *next);
+      return true;
+    }
+  }
+
+  // A part this small is not split further: its patch is mostly halo, so halving it
+  // would not make the patch fit.
+  static constexpr uint64_t kSmallestPart = 2048;
+
+  [[noreturn]] void refuse_part(const Gathered& g) const {
+    const uint64_t need = g.found_faces * kPatchBytesPerFace;
+    const uint64_t minimum = need / 3 * 4 + job.governor().baseline();  // patch_cap() is 3/4 of the capacity
+    throw Error(ErrorKind::resource,
+                "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings) +
+                    "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
+                    " of memory but --mem-budget " + config::format_size(job.governor().budget()) +
+                    " lets a patch hold " + config::format_size(patch_cap()) + "; the minimum budget is " +
+                    config::format_size(minimum));
+  }
+
+  // Halves a part's region across the longest axis of what it owns.
+  std::pair<PatchPart, PatchPart> halve(const PatchPart& part) const {
+    const Box owned = owned_box(part);
+    int axis = 0;
+    for (int k = 1; k < 3; ++k)
+      if (owned.max[k] - owned.min[k] > owned.max[axis] - owned.min[axis]) axis = k;
+    const double middle = 0.5 * (owned.min[axis] + owned.max[axis]);
+    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region};
+    PatchPart high = low;
+    low.region.max[axis] = middle;
+    high.region.min[axis] = middle;
+    return {low, high};
   }
 
   // One pass over the patches: each runs `plan` and exports its owned faces into `next`
   // (unless `candidates` is given: then it only collects its exact-cut candidates).
+  // An owner whose patch would not fit patch_cap() runs as parts: a part that does not
+  // fit is halved before anything of it ran (its gather found too many faces), a part
+  // of at most kSmallestPart owned faces that does not fit is refused; the next pass
+  // starts from the parts this one ran.
   RoundSummary pass(const MeshState& state, MeshState* next, const PatchPlan& plan, const DecimateParams& params,
                     std::vector<std::vector<Candidate>>* candidates, uint64_t needed, double progress_from,
                     double progress_to) {
     RoundSummary total;
     for (uint32_t p = 0; p < patches; ++p) {
       if (owner_faces[p] == 0) continue;
-      for (;;) {
-        job.check();
-        const double margin = (rings + 2) * owner_edge[p] * margin_factor[p];
-        const Box box = owner_box[p].grown(margin);
-        Lease lease = patch_lease(owner_faces[p] * 2);
-        Gathered g = load_candidates(job, scratch, state, p, box, false);
-        stats.gathered_faces_total += g.faces.size();
-        if (g.faces.size() * kPatchBytesPerFace > lease.bytes())
-          lease.try_grow(g.faces.size() * kPatchBytesPerFace - lease.bytes());
-        BuiltPatch built;
-        job.arena().execute([&] { built = build_patch(g, p, rings, false); });
-        g = {};
-        if (built.margin_too_small) {
-          margin_factor[p] *= 2;
-          ++stats.margin_redos;
+      std::vector<PatchPart> todo(owner_parts[p].rbegin(), owner_parts[p].rend());
+      std::vector<PatchPart> ran;
+      while (!todo.empty()) {
+        PatchPart part = std::move(todo.back());
+        todo.pop_back();
+        if (run_part(state, next, part, plan, params, candidates, needed, total)) {
+          ran.push_back(std::move(part));
           continue;
         }
-        stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
-        stats.patch_faces_total += built.input.faces.size();
-        stats.owned_faces_total += owner_faces[p];
-        bool ok = true;
-        RoundSummary summary;
-        std::vector<Candidate> owned;
-        std::optional<PatchOutput> out;
-        job.arena().execute([&] {
-          PatchDecimator d(std::move(built.input), params);
-          run_patch_plan(d, plan);
-          d.prepare_round();
-          summary = d.summarize();
-          if (candidates) owned = trim_for_exact_cut(d.owned_candidates(), needed);
-          if (summary.inexact_candidates) {
-            ok = false;
-            return;
-          }
-          if (next) {
-            out = d.extract();
-            if (out->untrusted_vertices) ok = false;
-          }
-        });
-        if (!ok) {
-          rings += 2;
-          ++stats.halo_redos;
-          stats.max_rings = std::max(stats.max_rings, rings);
-          continue;
-        }
-        total.add(summary);
-        if (candidates) (*candidates).push_back(std::move(owned));
-        if (next) export_patch(*out, p, *next);
-        break;
+        auto [low, high] = halve(part);
+        todo.push_back(std::move(high));
+        todo.push_back(std::move(low));
+        ++stats.patch_splits;
       }
+      owner_parts[p] = std::move(ran);
       job.progress(progress_from + (progress_to - progress_from) * double(p + 1) / patches, "epochs");
     }
     if (next) finish_state(job, scratch, *next);
@@ -871,7 +1032,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                                        [&] { return job.stopped(); });
   PatchInput whole;
   {
-    Gathered g = load_candidates(job, scratch, *state, 0, Box{}, true);
+    Gathered g = load_candidates(job, scratch, *state, nullptr, Box{});
     job.arena().execute([&] { whole = build_whole_patch(std::move(g)); });
   }
   replace_state(new_state());

@@ -18,13 +18,18 @@
 //   holding face records {fid, 3 vertex gids, owner} and the records of their vertices
 //   {gid, position, quadric, degree, lock}; every chunk holds faces of one owner.
 // - A patch's halo: faces within `rings` rings of its owned faces, found by BFS over
-//   the faces of the chunks whose box meets the owned box grown by a margin; a vertex
-//   whose fan is not whole in what was loaded (loaded faces < degree) may not be
-//   expanded: then the margin doubles and the patch is gathered again.
+//   the faces with a vertex in the owned box grown by a margin; a vertex whose fan is
+//   not whole in what was loaded (loaded faces < degree) may not be expanded: then the
+//   margin doubles and the patch is gathered again.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
-// - Memory: every buffer of a patch is under one governor lease sized from measured
-//   bytes per face; the whole run stays under the governor's budget.
+// - Memory: a patch runs under one governor lease of kPatchBytesPerFace per gathered
+//   face, at most 3/4 of the capacity; the gather stops holding faces once it finds
+//   more than the lease covers. Such a patch is split: its owner runs as parts (the
+//   faces whose centroid lies in each half of a region, halved again as needed), a
+//   finer partition with the same output; a part of at most 2048 owned faces that
+//   still does not fit is refused with the minimum budget (Error resource). The
+//   counts are in the report (patch_splits).
 // - All scratch and output I/O goes through the job's I/O thread.
 #include <array>
 #include <cstdint>
@@ -63,6 +68,7 @@ struct OocStats {
   uint64_t ooc_epochs = 0;           // passes over the patches
   uint64_t rounds = 0;
   uint64_t halo_redos = 0, margin_redos = 0;
+  uint64_t patch_splits = 0;         // a patch part halved because it did not fit its lease
   int max_rings = 0;
   uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)
   uint64_t patch_faces_max = 0;      // largest patch (owned + halo)
@@ -82,10 +88,14 @@ struct OocResult {
 OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const engine::LoadedMesh& mesh,
                           const OocOptions& options);
 
-// Bytes per face (owned + halo) of a patch while it is gathered and decimated, and of the
-// in-core finish; the budget rules use them. A patch peaks while the gathered state
+// Bytes per gathered face of a patch while it is gathered and decimated, and per face of
+// the in-core finish; the budget rules use them. A patch peaks while the gathered state
 // (face record 40 B + vertex records ~60 B per face), the BFS arrays and the built
-// PatchInput (~80 B) are alive together. The finish builds its input without the BFS and
+// PatchInput (~80 B) are alive together: measured on 1M faces at 96M (VmHWM reset per
+// phase, above the RSS before the gather), the gather peaks at 132-237 B and the build
+// at 188-274 B per gathered face; the decimator phase holds ~300 B per patch face plus
+// ~20 MB that does not scale with the patch (heap arenas), which the baseline's margin
+// covers. The finish builds its input without the BFS and
 // frees each gathered array as soon as its part of the input exists (build_whole_patch),
 // so it peaks in the decimator itself: measured 131 B/face (baseline excluded) at 1.76M
 // faces (`qemflow simplify b2m.ply --clusters 2 --in-core-faces 1900000`, VmRSS sampled);

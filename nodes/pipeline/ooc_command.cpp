@@ -80,6 +80,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["rounds"] = st.rounds;
     report["halo_redos"] = st.halo_redos;
     report["margin_redos"] = st.margin_redos;
+    report["patch_splits"] = st.patch_splits;
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;
     report["largest_patch_faces"] = st.patch_faces_max;

@@ -61,9 +61,8 @@ uint32_t clusters_for(const engine::LoadedMesh& mesh, uint64_t budget_bytes, con
   // The epoch pipeline runs one patch at a time, but a patch peaks at ~430 B per patch
   // face while gathered and built (state records + PatchInput + decimator; measured on
   // 5M faces at 256M), with 1.4-2.1 patch faces per owned face at 26-32 halo rings
-  // (the larger for small patches: 2.06 on 1M faces at 96M). A patch larger than its
-  // lease still runs (the lease's try_grow is not checked), so these figures must stay
-  // pessimistic: 280 and 1.6 let the demo peak at 98.6 MiB of 96 MiB.
+  // (the larger for small patches: 2.06 on 1M faces at 96M). An estimate: a patch
+  // that does not fit its lease is split into parts by the epoch pass (epochs.hpp).
   PatchBudget patch;
   patch.decimator_bytes_per_face = 320;
   patch.halo_factor = 2.0;

@@ -180,6 +180,41 @@ TEST(SimplifyOoc, PeakRssStaysUnderTheBudget) {
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 3000u);
 }
 
+// Two clusters on 300k faces: each owner's patch (owned + halo) is more than a patch
+// may hold under 110M, so the run must split owners into parts (a finer partition)
+// rather than run a patch over its lease; the output is still the in-core one.
+TEST(SimplifyOoc, PatchLargerThanItsLeaseIsSplitAndStaysUnderTheBudget) {
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
+  const auto report = dir / "r.json";
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+         " --ratio 0.01 --clusters 2 --in-core-faces 150000 --mem-budget 110M --quiet --report " + report.string() + " --scratch " +
+         dir.path().string());
+  const auto r = read_json(report);
+  EXPECT_GE(r["patch_splits"].get<int>(), 1);
+  EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
+  EXPECT_LE(r["governor_peak_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>() - r["baseline_bytes"].get<uint64_t>());
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 110ull << 20);
+  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply")) << "output differs from --in-core";
+}
+
+// The demo's size (scripts/demo.sh: 1M faces under 96M), where a patch once ran past
+// its lease and the process peaked at 98.6 MiB.
+TEST(SimplifyOoc, DemoSizedRunStaysUnderItsBudget) {
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  run_ok(q() + " gen " + mesh.string() + " --faces 1M --seed 1 --quiet");
+  const auto report = dir / "r.json";
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+         " --ratio 0.01 --mem-budget 96M --quiet --report " + report.string() + " --scratch " + dir.path().string());
+  const auto r = read_json(report);
+  EXPECT_GE(r["patches"].get<int>(), 8);
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 96ull << 20);
+  EXPECT_EQ(r["output_faces"].get<uint64_t>(), 10000u);
+}
+
 // Runs `simplify INPUT DIR/out.ply ARGS --scratch DIR/scratch`, which must fail with
 // `exit_code` and a message containing `needle`, leaving no output and an empty scratch.
 void expect_refused(const TempDir& dir, const std::filesystem::path& input, const std::string& args, int exit_code,
@@ -207,6 +242,15 @@ TEST(SimplifyOoc, BadInputExits3AndLeavesNothing) {
     f << "short";
   }
   expect_refused(dir, bad, "--ratio 0.5", 3, bad.string());
+}
+
+// A budget under which even a small part of a patch cannot hold its halo: refused with
+// the minimum budget named (exit 4), nothing left.
+TEST(SimplifyOoc, PatchThatCannotFitItsHaloIsRefused) {
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
+  expect_refused(dir, mesh, "--ratio 0.01 --clusters 2 --mem-budget 80M", 4, "the minimum budget is");
 }
 
 TEST(SimplifyOoc, TargetTooLargeForTheBudgetIsRefused) {
