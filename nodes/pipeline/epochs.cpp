@@ -859,8 +859,8 @@ struct Runner {
                 "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings) +
                     "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
                     " of memory but --mem-budget " + config::format_size(job.governor().budget()) +
-                    " lets a patch hold " + config::format_size(patch_cap()) + "; the minimum budget is " +
-                    config::format_size(minimum));
+                    " lets a patch hold " + config::format_size(patch_cap()) + "; this needs a budget of at least " +
+                    config::format_size(minimum) + " (--clusters, if given, larger)");
   }
 
   // Halves a part's region across the longest axis of what it owns.
