@@ -860,7 +860,7 @@ struct Runner {
                     "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
                     " of memory but --mem-budget " + config::format_size(job.governor().budget()) +
                     " lets a patch hold " + config::format_size(patch_cap()) + "; this needs a budget of at least " +
-                    config::format_size(minimum) + " (--clusters, if given, larger)");
+                    config::format_size(minimum));
   }
 
   // Halves a part's region across the longest axis of what it owns.
