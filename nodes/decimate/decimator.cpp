@@ -19,6 +19,20 @@ constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
 // corner_cost_ values: not computed yet / the edge has no finite cost or position.
 constexpr double kUnknownCost = std::numeric_limits<double>::quiet_NaN();
 constexpr double kSkipEdge = std::numeric_limits<double>::infinity();
+// With a deviation charge, an edge's two corners hold different things: the corner at
+// the endpoint with the smaller global id holds the full cost, the other one the
+// quadric part negated (sign bit set: -0.0 for a zero part), a lower bound that stays
+// valid while the endpoints' quadrics and positions do (only the kept vertex's edges
+// lose it, in collapse()); a border edge's one corner holds whichever is known, the
+// full cost winning. Full costs are >= +0.0 or kSkipEdge, never negative.
+bool is_lower_bound(double stored) { return std::signbit(stored) && !std::isnan(stored); }
+bool is_full_cost(double stored) { return !std::signbit(stored) && !std::isnan(stored); }
+double load_cost(const std::vector<double>& costs, uint32_t corner) {
+  return std::atomic_ref<double>(const_cast<double&>(costs[corner])).load(std::memory_order_relaxed);
+}
+void store_cost(std::vector<double>& costs, uint32_t corner, double value) {
+  std::atomic_ref<double>(costs[corner]).store(value, std::memory_order_relaxed);
+}
 // dirty_ value of a vertex whose refresh a round with a known cut skipped.
 constexpr uint8_t kDirtyStale = 2;
 // dirty_ value of a stale vertex next to a touched one (its edges' deviation charges
@@ -211,6 +225,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   for (uint8_t f : vflag_) untrusted_count_ += (f & kUntrusted) ? 1 : 0;
   best_.assign(nv, kNone);
   best_cost_.assign(nv, 0.0);
+  face_area_.assign(nv, kUnknownCost);
   partner_.assign(nv, kNone);
   dirty_.assign(nv, 1);
   touched_.assign(nv, 1);
@@ -445,13 +460,19 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
     // Unknown costs start from their quadric part, a lower bound of the cost: the
     // deviation part is computed only for options that could still win.
+    // A cached quadric part needs no position until the option is charged.
     Vec3 position{};
-    const double known = cached_cost(corner, twin);
-    const bool exact = !std::isnan(known) || !charged;
-    const double cost = !std::isnan(known) ? known : quadric_cost(v, w, corner, twin, position);
+    const CachedCost known = cached_cost(v, w, corner, twin);
+    const bool exact = known.full || !charged;
+    bool has_position = false;
+    double cost = known.cost;
+    if (std::isnan(cost)) {
+      cost = quadric_cost(v, w, corner, twin, position);
+      has_position = true;
+    }
     if (cost == kSkipEdge) continue;
     const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
-    if (key < bound) s.options.push_back({key, w, corner, twin, exact, std::isnan(known), position});
+    if (key < bound) s.options.push_back({key, w, corner, twin, exact, has_position, position});
   }
   // The smallest valid key. An option whose key is only a lower bound gets its exact
   // cost when it is the smallest left; an exact one is checked for validity when it is
@@ -463,6 +484,11 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       if (s.options[j].key < s.options[i].key) i = j;
     Scratch::Option& o = s.options[i];
     if (!o.exact) {
+      if (!o.has_position) {
+        // The same function of the same inputs as quadric_cost's position: the same bits.
+        o.position = edge_position(v, o.other);
+        o.has_position = true;
+      }
       o.key.cost = edge_cost(v, o.other, o.corner, o.twin, o.key.cost, o.position, s);
       o.exact = true;
       if (o.key.cost != kSkipEdge && o.key < bound) continue;
@@ -489,16 +515,29 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   }
 }
 
-double PatchDecimator::cached_cost(uint32_t corner, uint32_t twin) const {
+PatchDecimator::CachedCost PatchDecimator::cached_cost(uint32_t v, uint32_t w, uint32_t corner,
+                                                       uint32_t twin) const {
   // The cost depends only on both endpoints' quadrics, positions and faces (with their
-  // vertices' positions). Quadrics and positions change only at a collapse's kept
-  // vertex, whose edges' corners collapse() resets; faces change only within the kept
-  // vertex's first ring (the touched vertices), whose faces' corners prepare() resets
-  // when the cost has a deviation charge. So a cached value is the value recomputing
-  // would give, bit for bit (both ends and both corners of an edge compute the same).
-  const double known = std::atomic_ref<double>(const_cast<double&>(corner_cost_[corner])).load(std::memory_order_relaxed);
-  if (!std::isnan(known) || twin == kNone) return known;
-  return std::atomic_ref<double>(const_cast<double&>(corner_cost_[twin])).load(std::memory_order_relaxed);
+  // vertices' positions); its quadric part only on the quadrics and positions.
+  // Quadrics and positions change only at a collapse's kept vertex, whose edges'
+  // corners collapse() resets; faces change only within the kept vertex's first ring
+  // (the touched vertices), whose faces' full costs prepare() resets when the cost has
+  // a deviation charge. So a cached value is the value recomputing would give, bit for
+  // bit (both ends and both corners of an edge compute the same).
+  const bool charged = params_.deviation_weight > 0.0;
+  if (twin == kNone || !charged) {
+    // Without a charge both corners hold the cost (either may be reset by collapse()).
+    const double known = load_cost(corner_cost_, corner);
+    if (!std::isnan(known) || twin == kNone)
+      return {is_lower_bound(known) ? -known : known, is_full_cost(known)};
+    const double other = load_cost(corner_cost_, twin);
+    return {other, !std::isnan(other)};
+  }
+  const bool v_lo = vgid_[v] < vgid_[w];
+  const double full = load_cost(corner_cost_, v_lo ? corner : twin);
+  if (!std::isnan(full)) return {full, true};
+  const double lower = load_cost(corner_cost_, v_lo ? twin : corner);
+  return {is_lower_bound(lower) ? -lower : kUnknownCost, false};
 }
 
 double PatchDecimator::quadric_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin,
@@ -510,8 +549,12 @@ double PatchDecimator::quadric_cost(uint32_t v, uint32_t w, uint32_t corner, uin
   if (!finite) cost = kSkipEdge;
   // Without a charge the quadric part is the cost; a skipped edge stays skipped.
   if (!finite || params_.deviation_weight <= 0.0) {
-    std::atomic_ref<double>(corner_cost_[corner]).store(cost, std::memory_order_relaxed);
-    if (twin != kNone) std::atomic_ref<double>(corner_cost_[twin]).store(cost, std::memory_order_relaxed);
+    store_cost(corner_cost_, corner, cost);
+    if (twin != kNone) store_cost(corner_cost_, twin, cost);
+  } else {
+    // The lower bound goes to the corner the full cost does not use (see is_lower_bound).
+    const bool v_lo = vgid_[v] < vgid_[w];
+    store_cost(corner_cost_, twin == kNone || !v_lo ? corner : twin, -cost);
   }
   return cost;
 }
@@ -522,8 +565,8 @@ double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32
   double cost = quadric + params_.deviation_weight * (v_lo ? deviation(v, w, position, s)
                                                            : deviation(w, v, position, s));
   if (!std::isfinite(cost)) cost = kSkipEdge;
-  std::atomic_ref<double>(corner_cost_[corner]).store(cost, std::memory_order_relaxed);
-  if (twin != kNone) std::atomic_ref<double>(corner_cost_[twin]).store(cost, std::memory_order_relaxed);
+  // Only the smaller-gid end's corner: the other keeps the quadric part.
+  store_cost(corner_cost_, twin == kNone || v_lo ? corner : twin, cost);
   return cost;
 }
 
@@ -531,23 +574,33 @@ double PatchDecimator::deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch&
   // a has the smaller global id, so both ends of the edge compute the same bits. Corner
   // lists are not in a canonical order after collapses (nor equal to a patch's), so
   // each endpoint's area is summed in ascending order of the face areas (the fan's
-  // nearest distance is a minimum: no order).
+  // nearest distance is a minimum: no order). The sum is cached per vertex
+  // (face_area_) until prepare() finds the vertex touched.
   s.moved.clear();
   double area[2] = {0.0, 0.0};
   for (int side = 0; side < 2; ++side) {
-    const uint32_t other = side == 0 ? b : a;
+    const uint32_t x = side == 0 ? a : b, other = side == 0 ? b : a;
+    std::atomic_ref<double> cached(const_cast<double&>(face_area_[x]));
+    area[side] = cached.load(std::memory_order_relaxed);
+    const bool sum_areas = std::isnan(area[side]);
     s.areas.clear();
-    for (uint32_t c : corners_of(side == 0 ? a : b)) {
+    for (uint32_t c : corners_of(x)) {
       const auto& t = fv_[c / 3];
-      const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
-      s.areas.push_back(0.5 * std::sqrt(dot(n, n)));
+      if (sum_areas) {
+        const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
+        s.areas.push_back(0.5 * std::sqrt(dot(n, n)));
+      }
       if (contains(t, other)) continue;  // removed by the collapse
       Triangle3 moved;
       for (int k = 0; k < 3; ++k) moved[k] = (t[k] == a || t[k] == b) ? p : pos_[t[k]];
       s.moved.push_back(moved);
     }
-    std::sort(s.areas.begin(), s.areas.end());
-    for (double x : s.areas) area[side] += x;
+    if (sum_areas) {
+      std::sort(s.areas.begin(), s.areas.end());
+      area[side] = 0.0;
+      for (double y : s.areas) area[side] += y;
+      cached.store(area[side], std::memory_order_relaxed);
+    }
   }
   return collapse_deviation(pos_[a], area[0], pos_[b], area[1], s.moved);
 }
@@ -614,6 +667,8 @@ void PatchDecimator::compact_storage() {
     touched_[nv] = touched_[v];
     best_[nv] = best_[v];
     best_cost_[nv] = best_cost_[v];
+    face_area_[nv] = face_area_[v];
+    partner_[nv] = partner_[v];
     ++nv;
   }
   pos_.resize(nv);
@@ -624,8 +679,10 @@ void PatchDecimator::compact_storage() {
   touched_.resize(nv);
   best_.resize(nv);
   best_cost_.resize(nv);
-  partner_.assign(nv, kNone);
+  face_area_.resize(nv);
+  partner_.resize(nv);
   for (auto& b : best_) b = b == kNone ? kNone : remap[b];
+  for (auto& w : partner_) w = w == kNone ? kNone : remap[w];
   size_t nf = 0;
   for (size_t f = 0; f < fv_.size(); ++f) {
     if (!falive_[f]) continue;
@@ -663,15 +720,20 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   parallel_over(touched_list.size(), [&](size_t i) {
     const uint32_t v = touched_list[i];
     compact_list(v);
+    // v's faces, or a vertex of one of them, changed (a collapse touches its kept
+    // vertex's whole first ring): the area of v's faces is to be summed again.
+    face_area_[v] = kUnknownCost;
     update_border(v, scratch.local());
     raise_flag(dirty_[v]);
     for (uint32_t c : corners_of(v)) {
       for (uint32_t x : fv_[c / 3]) raise_dirty(dirty_[x]);
       // v's faces changed, so did the deviation charge of every edge at v: reset the
-      // face's three corners (both corners of v's edges lie in faces of v).
+      // face's three corners (both corners of v's edges lie in faces of v). Quadric
+      // parts stay: v's quadric and position did not change unless v was a collapse's
+      // kept vertex, whose corners collapse() reset already.
       if (charged)
         for (uint32_t k = c - c % 3; k < c - c % 3 + 3; ++k)
-          std::atomic_ref<double>(corner_cost_[k]).store(kUnknownCost, std::memory_order_relaxed);
+          if (!is_lower_bound(load_cost(corner_cost_, k))) store_cost(corner_cost_, k, kUnknownCost);
     }
   });
   for (uint32_t v = 0; v < nv; ++v)
@@ -704,10 +766,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     dirty_[v] = dirty_[v] >= kDirtyStale ? kDirtyStale : 0;
     touched_[v] = 0;
   }
-  parallel_over(nv, [&](size_t v) {
-    const uint32_t w = best_[v];
-    partner_[v] = (w != kNone && best_[w] == v) ? w : kNone;
-  });
+  update_partners(dirty_list);
 
   tbb::enumerable_thread_specific<std::vector<Candidate>> found;
   parallel_over(nv, [&](size_t vi) {
@@ -741,6 +800,31 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   }
   tbb::parallel_sort(candidates_.begin(), candidates_.end(),
                      [](const Candidate& x, const Candidate& y) { return x.key < y.key; });
+}
+
+void PatchDecimator::update_partners(std::span<const uint32_t> changed) {
+  // partner_[v] = best_[v] when that edge is best at both ends, else kNone: a function
+  // of best_ at v and at best_[v]. best_ changed only at `changed` (the refreshed
+  // vertices; every other write to best_ is followed by a refresh), so only pairs with
+  // an end there can change: undo their old pairs (partner_ is symmetric), then pair
+  // the ends of the mutual best edges among them. The result is the full recomputation's.
+  auto store = [&](uint32_t v, uint32_t w) {
+    std::atomic_ref<uint32_t>(partner_[v]).store(w, std::memory_order_relaxed);
+  };
+  parallel_over(changed.size(), [&](size_t i) {
+    const uint32_t v = changed[i];
+    const uint32_t old = std::atomic_ref<uint32_t>(partner_[v]).load(std::memory_order_relaxed);
+    if (old != kNone) store(old, kNone);
+    store(v, kNone);
+  });
+  parallel_over(changed.size(), [&](size_t i) {
+    const uint32_t v = changed[i];
+    const uint32_t w = best_[v];
+    if (w != kNone && best_[w] == v) {
+      store(v, w);
+      store(w, v);
+    }
+  });
 }
 
 void PatchDecimator::set_params(const DecimateParams& params) {

@@ -233,8 +233,13 @@ class PatchDecimator {
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut);
   void update_border(uint32_t v, Scratch& s);
   void fan_neighbors(uint32_t v, std::span<const uint32_t> corners, std::vector<FanEdge>& out) const;
-  // The cached cost of the edge at `corner` (or its twin), NaN when unknown.
-  double cached_cost(uint32_t corner, uint32_t twin) const;
+  // The cached cost of edge (v, w) at `corner` (v's) and `twin` (w's, or kNone):
+  // `cost` is the full cost when `full`, else its quadric part (a lower bound) or NaN.
+  struct CachedCost {
+    double cost;
+    bool full;
+  };
+  CachedCost cached_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin) const;
   // Quadric part of edge (v, w)'s cost (a lower bound of edge_cost, the charge being
   // >= 0) and the position; kSkipEdge, also cached, when either is not finite.
   double quadric_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin, Vec3& position);
@@ -248,6 +253,8 @@ class PatchDecimator {
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
   EdgeKey lme_key(uint32_t v) const;
+  // Brings partner_ up to date after best_ changed at the vertices `changed` only.
+  void update_partners(std::span<const uint32_t> changed);
   void collapse(const Candidate& c, uint64_t list_at);
   void compact_list(uint32_t v);
   // Rings (capped at `radius` + 1) from the untrusted set, in the current mesh.
@@ -273,12 +280,18 @@ class PatchDecimator {
   std::vector<uint32_t> adj_;
   std::vector<uint32_t> best_;       // other endpoint of best edge, or kNone
   std::vector<double> best_cost_;
-  std::vector<uint32_t> partner_;    // LME partner, or kNone (round scratch)
+  // Area of the vertex's faces as deviation() sums it (in ascending order of the face
+  // areas); NaN: unknown (reset when the vertex is touched).
+  std::vector<double> face_area_;
+  std::vector<uint32_t> partner_;    // LME partner (best_ at both ends), or kNone
   // faces; corner c = 3 * face + slot
   std::vector<std::array<uint32_t, 3>> fv_;
   std::vector<uint64_t> fgid_;
   std::vector<uint8_t> falive_;
-  std::vector<double> corner_cost_;  // cost of the edge (corner's vertex, next one); NaN: unknown
+  // Cost of the edge (corner's vertex, next one); NaN: unknown. With a deviation charge
+  // one corner of an edge holds the full cost, the other its quadric part (see
+  // is_lower_bound in decimator.cpp).
+  std::vector<double> corner_cost_;
   uint64_t faces_alive_ = 0;
   // faces with a repeated vertex: passed through unchanged
   std::vector<std::array<uint32_t, 3>> passthrough_;
