@@ -521,7 +521,7 @@ PatchDecimator::CachedCost PatchDecimator::cached_cost(uint32_t v, uint32_t w, u
   // vertices' positions); its quadric part only on the quadrics and positions.
   // Quadrics and positions change only at a collapse's kept vertex, whose edges'
   // corners collapse() resets; faces change only within the kept vertex's first ring
-  // (the touched vertices), whose faces' full costs prepare() resets when the cost has
+  // (the touched vertices), whose edges' full costs prepare() resets when the cost has
   // a deviation charge. So a cached value is the value recomputing would give, bit for
   // bit (both ends and both corners of an edge compute the same).
   const bool charged = params_.deviation_weight > 0.0;
@@ -727,12 +727,14 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     raise_flag(dirty_[v]);
     for (uint32_t c : corners_of(v)) {
       for (uint32_t x : fv_[c / 3]) raise_dirty(dirty_[x]);
-      // v's faces changed, so did the deviation charge of every edge at v: reset the
-      // face's three corners (both corners of v's edges lie in faces of v). Quadric
-      // parts stay: v's quadric and position did not change unless v was a collapse's
-      // kept vertex, whose corners collapse() reset already.
+      // v's faces changed, so did the deviation charge of every edge at v: reset its
+      // corners v -> next and prev -> v in each face (both corners of v's edges lie in
+      // faces of v). The face's third edge joins two other vertices; its charge changed
+      // only if one of them is touched too, whose own pass resets it. Quadric parts
+      // stay: v's quadric and position did not change unless v was a collapse's kept
+      // vertex, whose corners collapse() reset already.
       if (charged)
-        for (uint32_t k = c - c % 3; k < c - c % 3 + 3; ++k)
+        for (uint32_t k : {c, c - c % 3 + (c % 3 + 2) % 3})
           if (!is_lower_bound(load_cost(corner_cost_, k))) store_cost(corner_cost_, k, kUnknownCost);
     }
   });
