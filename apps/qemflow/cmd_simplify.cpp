@@ -40,6 +40,7 @@ struct SimplifyArgs {
   double round_fraction = nodes::SimplifyOptions{}.round_fraction;
   double candidate_fraction = nodes::SimplifyOptions{}.candidate_fraction;
   uint32_t epoch_rounds = nodes::SimplifyOptions{}.epoch_rounds;
+  double cut_rise = nodes::SimplifyOptions{}.cut_rise;
   nodes::DecimateParams params;
 };
 
@@ -80,6 +81,7 @@ void run_simplify(const SimplifyArgs& args) {
     o.simplify.round_fraction = args.round_fraction;
     o.simplify.candidate_fraction = args.candidate_fraction;
     o.simplify.epoch_rounds = args.epoch_rounds;
+    o.simplify.cut_rise = args.cut_rise;
     o.simplify.params = args.params;
     o.partition.clusters = args.clusters == "auto" ? 0 : uint32_t(std::stoul(args.clusters));
     command.weld = !args.no_weld;
@@ -105,6 +107,7 @@ void run_simplify(const SimplifyArgs& args) {
   options.round_fraction = args.round_fraction;
   options.candidate_fraction = args.candidate_fraction;
   options.epoch_rounds = args.epoch_rounds;
+  options.cut_rise = args.cut_rise;
   options.params = args.params;
   nodes::SimplifyResult result =
       nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), options);
@@ -136,6 +139,7 @@ void run_simplify(const SimplifyArgs& args) {
         {"rounds", st.rounds},
         {"epochs", st.epochs},
         {"epoch_rounds", args.epoch_rounds},
+        {"cut_rise", args.cut_rise},
         {"patches", 1},
         {"budget_bytes", 0},
         {"peak_rss_bytes", peak_rss_bytes()},
@@ -199,6 +203,10 @@ void add_simplify_command(CLI::App& root, Run& run) {
                   "pass over the patches per epoch)")
       ->capture_default_str()
       ->check(CLI::Range(1u, 64u));
+  cmd->add_option("--cut-rise", args->cut_rise,
+                  "cost bins (4 per octave) the cut rises per round of an epoch; 0: one cut per epoch")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 64.0));
   cmd->add_option("--min-normal-cos", args->params.min_normal_cos,
                   "tuning: smallest allowed cosine between a face's normals before and after a collapse")
       ->capture_default_str();

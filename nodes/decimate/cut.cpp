@@ -52,12 +52,33 @@ EpochPlan plan_epoch(const RoundSummary& total, uint64_t faces, uint64_t target_
     plan.needed = needed;
     return plan;
   }
-  plan.kind = EpochPlan::Kind::bin_cut;
-  plan.cut = round.cut;
+  const size_t first_bin = cost_bin(round.cut.key.cost);
   uint64_t first_round = 0;
-  for (size_t bin = 0; bin <= cost_bin(round.cut.key.cost); ++bin) first_round += total.faces_per_bin[bin];
-  const uint64_t rounds = std::max<uint32_t>(1, options.epoch_rounds);
-  plan.rounds = rounds * 2 * first_round >= needed ? 1 : static_cast<uint32_t>(rounds);
+  for (size_t bin = 0; bin <= first_bin; ++bin) first_round += total.faces_per_bin[bin];
+  plan.kind = EpochPlan::Kind::bin_cut;
+  // Rounds: as many as E while the faces they may remove stay within what is needed:
+  // the first round removes what its cut takes of the candidates (known), every later
+  // round is taken to remove round_fraction of the faces left (its cut is higher and
+  // its candidates are not known yet; the bulk rounds remove 3-6%).
+  const uint32_t most = std::max<uint32_t>(1, options.epoch_rounds);
+  uint32_t rounds = 1;
+  double left = double(faces - first_round);
+  while (rounds < most) {
+    left *= 1.0 - options.round_fraction;
+    if (double(faces) - left >= double(needed)) break;
+    ++rounds;
+  }
+  // Round r's cut (r = 0, 1, ...): the first round's bin raised by floor(r * cut_rise)
+  // bins, a schedule fixed in advance that follows (below) the pace at which the
+  // round-by-round cut rises (about one bin per round), so no round takes much more
+  // of its candidates than the first one does.
+  plan.cuts.push_back(round.cut);
+  for (uint32_t r = 1; r < rounds; ++r) {
+    const size_t bin = std::min<size_t>(kCostBins - 1, first_bin + size_t(std::floor(r * options.cut_rise)));
+    plan.cuts.push_back({{cost_bin_upper(bin), std::numeric_limits<uint64_t>::max(),
+                          std::numeric_limits<uint64_t>::max()},
+                         false});
+  }
   return plan;
 }
 

@@ -42,14 +42,14 @@ RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_
 struct EpochOptions {
   double round_fraction = 0.1;      // most faces a round may remove
   double candidate_fraction = 0.75;  // most of the candidates' faces a round may remove
-  uint32_t epoch_rounds = 4;        // rounds per epoch in the bulk phase (E)
+  uint32_t epoch_rounds = 12;       // rounds per epoch in the bulk phase (E)
+  double cut_rise = 0.5;            // cost bins (4 per octave) the cut rises per round of an epoch
 };
 
 struct EpochPlan {
   enum class Kind { stop, relax, bin_cut, exact_cut } kind = Kind::stop;
-  RoundCut cut;          // bin_cut: the cut of every round of the epoch
-  uint32_t rounds = 0;   // bin_cut: rounds in the epoch
-  uint64_t needed = 0;   // exact_cut: faces still to remove
+  std::vector<RoundCut> cuts;  // bin_cut: the cut of each round of the epoch (rising)
+  uint64_t needed = 0;         // exact_cut: faces still to remove
 };
 
 // `total`: the summed summaries of the epoch's first round; `faces`: the global face

@@ -24,7 +24,7 @@ uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options)
 }
 
 EpochOptions epoch_options(const SimplifyOptions& options) {
-  return {options.round_fraction, options.candidate_fraction, options.epoch_rounds};
+  return {options.round_fraction, options.candidate_fraction, options.epoch_rounds, options.cut_rise};
 }
 
 EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
@@ -58,10 +58,10 @@ EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
       continue;
     }
     // The epoch's rounds run blind, as every out-of-core patch does: no early exit.
-    round(plan.cut);
-    for (uint32_t r = 1; r < plan.rounds; ++r) {
-      decimator.prepare_round(plan.cut);
-      round(plan.cut);
+    round(plan.cuts.front());
+    for (size_t r = 1; r < plan.cuts.size(); ++r) {
+      decimator.prepare_round(plan.cuts[r]);
+      round(plan.cuts[r]);
     }
   }
   return st;

@@ -28,6 +28,7 @@ struct SimplifyOptions {
   double round_fraction = EpochOptions{}.round_fraction;  // most faces a non-final round may remove
   double candidate_fraction = EpochOptions{}.candidate_fraction;  // most of the candidates' faces a round may remove
   uint32_t epoch_rounds = EpochOptions{}.epoch_rounds;  // rounds per global decision (E)
+  double cut_rise = EpochOptions{}.cut_rise;  // cost bins the cut rises per round of an epoch
   DecimateParams params;
   // Called after each round with (round, faces now); may be empty.
   std::function<void(uint64_t, uint64_t)> on_round;

@@ -386,8 +386,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
 
 struct PatchPlan {
   enum class Kind { summary_only, bin_cut, exact_cut } kind = Kind::summary_only;
-  RoundCut cut;
-  uint32_t rounds = 0;
+  std::vector<RoundCut> cuts;  // one per round
 };
 
 // What one patch owns: the faces of `owner` whose centroid lies in `region`
@@ -712,9 +711,9 @@ void run_patch_plan(PatchDecimator& d, const PatchPlan& plan) {
   if (plan.kind == PatchPlan::Kind::summary_only) return;
   // The cut is known, so every round may skip the vertices whose edges all lie above
   // it (the summary after the epoch refreshes them with a plain prepare_round).
-  for (uint32_t r = 0; r < plan.rounds; ++r) {
-    d.prepare_round(plan.cut);
-    d.apply_cut(plan.cut);
+  for (const RoundCut& cut : plan.cuts) {
+    d.prepare_round(cut);
+    d.apply_cut(cut);
   }
 }
 
@@ -1000,21 +999,21 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
           params = relaxed_params(params);
           relaxed = true;
         } else if (e.kind == EpochPlan::Kind::bin_cut) {
-          plan = {PatchPlan::Kind::bin_cut, e.cut, e.rounds};
+          plan = {PatchPlan::Kind::bin_cut, e.cuts};
         } else {
           std::vector<std::vector<Candidate>> lists;
           runner.pass(*state, nullptr, {}, params, &lists, e.needed, 0.3, 0.3);
           const std::vector<std::span<const Candidate>> spans(lists.begin(), lists.end());
           const auto cut = exact_cut(spans, e.needed);
           if (!cut) break;
-          plan = {PatchPlan::Kind::exact_cut, *cut, 1};
+          plan = {PatchPlan::Kind::exact_cut, {*cut}};
         }
       }
       auto next = new_state();
       const double done = std::min(1.0, double(st.input_faces - state->faces) /
                                             double(std::max<uint64_t>(1, st.input_faces - st.target_faces)));
       summary = runner.pass(*state, next.get(), plan, params, nullptr, 0, 0.3 + 0.6 * done, 0.3 + 0.6 * done);
-      st.rounds += plan.kind == PatchPlan::Kind::summary_only ? 0 : plan.rounds;
+      st.rounds += plan.cuts.size();
       ++st.ooc_epochs;
       first = false;
       replace_state(std::move(next));

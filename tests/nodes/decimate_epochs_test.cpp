@@ -111,11 +111,11 @@ struct Simulation {
       for (auto* d : ds) d->apply_cut(*exact);
       return;
     }
-    for (auto* d : ds) d->apply_cut(plan.cut);
-    for (uint32_t r = 1; r < plan.rounds; ++r)
+    for (auto* d : ds) d->apply_cut(plan.cuts.front());
+    for (size_t r = 1; r < plan.cuts.size(); ++r)
       for (auto* d : ds) {
         d->prepare_round();
-        d->apply_cut(plan.cut);
+        d->apply_cut(plan.cuts[r]);
       }
   }
 
@@ -331,7 +331,7 @@ std::vector<Case> cases() {
 }
 
 TEST(DecimateEpochs, InCoreRunIsDeterministicAndExactForSeveralEpochLengths) {
-  for (uint32_t e : {1u, 2u, 3u, 4u, 6u}) {
+  for (uint32_t e : {1u, 2u, 3u, 4u, 6u, 12u}) {
     EpochOptions options;
     options.epoch_rounds = e;
     for (const auto& c : cases()) {
@@ -367,7 +367,7 @@ TEST(DecimateEpochs, EpochOfOneRoundIsTheRoundByRoundSchedule) {
   EXPECT_GE(st.epochs, st.rounds);
 }
 
-TEST(DecimateEpochs, PlanEpochEndGameIsASingleRound) {
+TEST(DecimateEpochs, PlanEpochRisingCutsAndEndGame) {
   RoundSummary s;
   s.faces_per_bin[cost_bin(1.0)] = 100;
   s.faces_per_bin[cost_bin(4.0)] = 100;
@@ -377,16 +377,37 @@ TEST(DecimateEpochs, PlanEpochEndGameIsASingleRound) {
   o.epoch_rounds = 3;
   o.round_fraction = 0.1;
   o.candidate_fraction = 0.5;
-  // 1000 faces: budget 100 = the first bin; 3 * 2 * 100 < 900 still to remove.
+  o.cut_rise = 0.5;
+  // 1000 faces: budget 100 = the first bin; the first round removes 100, each later
+  // one is taken to remove 10% of the rest: 100 + 90 + 81 < 900 still to remove.
   EpochPlan p = plan_epoch(s, 1000, 100, false, o);
   ASSERT_EQ(p.kind, EpochPlan::Kind::bin_cut);
-  EXPECT_EQ(p.rounds, 3u);
-  EXPECT_LT(1.0, p.cut.key.cost);
-  EXPECT_LT(p.cut.key.cost, 4.0);
-  // 500 still to remove <= 3 * 2 * 100: end game.
+  ASSERT_EQ(p.cuts.size(), 3u);
+  EXPECT_LT(1.0, p.cuts[0].key.cost);
+  EXPECT_LT(p.cuts[0].key.cost, 4.0);
+  // The cut rises by floor(r * 0.5) bins: round 2 keeps the first cut, round 3 is one
+  // bin (a quarter octave) higher.
+  EXPECT_EQ(p.cuts[1].key.cost, p.cuts[0].key.cost);
+  EXPECT_EQ(cost_bin(p.cuts[2].key.cost), cost_bin(p.cuts[0].key.cost) + 1);
+  EXPECT_EQ(p.cuts[2].key.cost, cost_bin_upper(cost_bin(1.0) + 1));
+  o.cut_rise = 2;
+  p = plan_epoch(s, 1000, 100, false, o);
+  ASSERT_EQ(p.cuts.size(), 3u);
+  EXPECT_EQ(cost_bin(p.cuts[1].key.cost), cost_bin(1.0) + 2);
+  EXPECT_EQ(cost_bin(p.cuts[2].key.cost), cost_bin(1.0) + 4);
+  // 500 still to remove: 271 fits, three rounds.
   p = plan_epoch(s, 1000, 500, false, o);
+  EXPECT_EQ(p.cuts.size(), 3u);
+  // 150 still to remove: 100 + 90 does not fit, one round.
+  p = plan_epoch(s, 1000, 850, false, o);
   ASSERT_EQ(p.kind, EpochPlan::Kind::bin_cut);
-  EXPECT_EQ(p.rounds, 1u);
+  EXPECT_EQ(p.cuts.size(), 1u);
+  // Later rounds taken to remove 30% of the rest: 100 + 270 > 300 to remove, one round.
+  o.round_fraction = 0.3;
+  p = plan_epoch(s, 1000, 700, false, o);
+  ASSERT_EQ(p.kind, EpochPlan::Kind::bin_cut);
+  EXPECT_EQ(p.cuts.size(), 1u);
+  o.round_fraction = 0.1;
   // The first bin covers what is left: exact.
   p = plan_epoch(s, 1000, 950, false, o);
   EXPECT_EQ(p.kind, EpochPlan::Kind::exact_cut);
