@@ -12,15 +12,16 @@
 // (exact_cut merges the patches' sorted candidate lists).
 //
 // Epochs: the global decision is taken once per epoch (plan_epoch, from the summary at
-// the epoch's start) and reused by the epoch's rounds, so an out-of-core run needs one
+// the epoch's start) and covers the epoch's rounds, so an out-of-core run needs one
 // pass over the patches per epoch, not two per round. An epoch is either
 //   stop, relax (no candidate anywhere: relax the guards once, plan again),
 //   exact (one round with the exact_cut of the owned candidate lists), or
-//   bin (`rounds` rounds, each: prepare_round, apply_cut(cut) with the same cut).
-// In the bulk phase rounds = epoch_rounds; when epoch_rounds * 2 * (faces the cut
-// removes in its first round) >= faces still to remove, the epoch is a single round
-// (END GAME), so the exact target is still hit: later rounds' removals are not known
-// in advance.
+//   bin (rounds r = 0.., each: prepare_round, apply_cut(cuts[r])): cuts[0] by the rule
+//   above, cuts[r] = cuts[0]'s bin + floor(r * cut_rise) bins, a rise fixed in advance
+//   below the pace of the round-by-round cut (about one bin per round), so every
+//   round removes faces. Up to epoch_rounds rounds, as long as the first round's
+//   removal plus round_fraction of the faces left per later round stays within what
+//   is needed (END GAME: fewer rounds, then exact), so the exact target is still hit.
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -42,7 +43,7 @@ RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_
 struct EpochOptions {
   double round_fraction = 0.1;      // most faces a round may remove
   double candidate_fraction = 0.75;  // most of the candidates' faces a round may remove
-  uint32_t epoch_rounds = 12;       // rounds per epoch in the bulk phase (E)
+  uint32_t epoch_rounds = 4;        // rounds per epoch in the bulk phase (E)
   double cut_rise = 0.5;            // cost bins (4 per octave) the cut rises per round of an epoch
 };
 
