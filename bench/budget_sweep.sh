@@ -20,7 +20,7 @@ trap 'rm -rf "$WORK"' EXIT
 
 echo "generating $FACES faces..." >&2
 "$QEMFLOW" gen "$WORK/in.ply" --faces "$FACES" --quiet >&2
-echo "faces,budget,budget_bytes,patches,epochs,out_of_core_epochs,in_core_faces,wall_s,cpu_s,load1,faces_per_s,peak_rss_bytes,scratch_read_bytes,scratch_written_bytes,io_busy_pct" > "$CSV"
+echo "faces,budget,budget_bytes,patches,epochs,out_of_core_epochs,in_core_faces,wall_s,cpu_s,load1,faces_per_s,peak_rss_bytes,scratch_read_bytes,scratch_written_bytes,io_busy_pct,patch_splits,commit" > "$CSV"
 for BUDGET in "${BUDGETS[@]}"; do
   echo "simplify at --mem-budget $BUDGET..." >&2
   LOAD=$(cut -d' ' -f1 /proc/loadavg)  # wall time follows the machine's load; CPU seconds much less
@@ -29,14 +29,16 @@ for BUDGET in "${BUDGETS[@]}"; do
     echo "  (refused or failed at $BUDGET)" >&2
     continue
   fi
-  /usr/bin/python3 - "$WORK/report.json" "$FACES" "$BUDGET" "$LOAD" >> "$CSV" <<'PY'
+  COMMIT=$(git -C "$HERE" rev-parse --short HEAD 2>/dev/null || echo unknown)
+  /usr/bin/python3 - "$WORK/report.json" "$FACES" "$BUDGET" "$LOAD" "$COMMIT" >> "$CSV" <<'PY'
 import json, sys
 r = json.load(open(sys.argv[1]))
 wall = r["wall_seconds"]
 io = 100 * r["io_busy_seconds"] / wall if wall else 0
 print(f"{sys.argv[2]},{sys.argv[3]},{r['budget_bytes']},{r['patches']},{r['epochs']},{r['out_of_core_epochs']},"
       f"{r['in_core_faces']},{wall:.2f},{r['cpu_seconds']:.1f},{sys.argv[4]},{r['input_faces'] / wall:.0f},"
-      f"{r['peak_rss_bytes']},{r['scratch_bytes_read']},{r['scratch_bytes_written']},{io:.0f}")
+      f"{r['peak_rss_bytes']},{r['scratch_bytes_read']},{r['scratch_bytes_written']},{io:.0f},"
+      f"{r.get('patch_splits', 0)},{sys.argv[5]}")
 PY
   rm -f "$WORK/out.ply"
 done
