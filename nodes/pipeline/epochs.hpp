@@ -1,5 +1,5 @@
 #pragma once
-// The out-of-core simplification pipeline (docs: /work/notes/ooc.md, DESIGN.md §2-5):
+// The out-of-core simplification pipeline (DESIGN.md §2-5; README.md, "Out of core equals in core"):
 //
 //   input ──loader──► blocks ──convert (owner per face, degrees)──► mesh state (scratch)
 //   mesh state ──epoch pass: per patch gather owned + BFS halo, PatchDecimator runs the
