@@ -397,6 +397,10 @@ struct PatchPart {
   uint32_t owner = 0;
   bool whole = true;
   Box region;  // when not whole
+  // The halo box's margin in (rings + 2) mean edges; doubled when the BFS reached a
+  // vertex whose fan was not gathered. Per part, so one part's redo does not widen its
+  // siblings' gathers.
+  double margin_factor = 1.5;
 };
 
 // Face records the part does not own carry this owner, so "owner == p" means "owned by
@@ -741,7 +745,6 @@ struct Runner {
   OocStats& stats;
   uint32_t patches = 1;
   int rings = 0;
-  std::vector<double> margin_factor;
   std::vector<Box> owner_box;
   std::vector<double> owner_edge;  // mean edge length of the owned faces
   std::vector<uint64_t> owner_faces;
@@ -779,16 +782,17 @@ struct Runner {
     return part.whole ? owner_box[part.owner] : owner_box[part.owner].intersected(part.region);
   }
 
-  // Runs one part: gather under a lease of at most patch_cap(), build with the halo,
-  // run the plan, summarize, export. False, with nothing run or kept, when the gather
-  // found more faces than the lease holds.
-  bool run_part(const MeshState& state, MeshState* next, const PatchPart& part, const PatchPlan& plan,
+  // Runs one part: gather under a lease of at most patch_cap(), build with the halo
+  // (a margin redo doubles the part's margin factor), run the plan, summarize, export.
+  // False, with nothing run or kept, when the gather found more faces than the lease
+  // holds.
+  bool run_part(const MeshState& state, MeshState* next, PatchPart& part, const PatchPlan& plan,
                 const DecimateParams& params, std::vector<std::vector<Candidate>>* candidates, uint64_t needed,
                 RoundSummary& total) {
     const uint32_t p = part.owner;
     for (;;) {
       job.check();
-      const double margin = (rings + 2) * owner_edge[p] * margin_factor[p];
+      const double margin = (rings + 2) * owner_edge[p] * part.margin_factor;
       const Box box = owned_box(part).grown(margin);
       // The gather's upper bound from the chunk metas: when it fits, the gather cannot
       // go over; the lease is trimmed to what was found.
@@ -808,7 +812,7 @@ struct Runner {
       job.arena().execute([&] { built = build_patch(g, p, rings, false); });
       g = {};
       if (built.margin_too_small) {
-        margin_factor[p] *= 2;
+        part.margin_factor *= 2;
         ++stats.margin_redos;
         continue;
       }
@@ -869,7 +873,7 @@ struct Runner {
     for (int k = 1; k < 3; ++k)
       if (owned.max[k] - owned.min[k] > owned.max[axis] - owned.min[axis]) axis = k;
     const double middle = 0.5 * (owned.min[axis] + owned.max[axis]);
-    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region};
+    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region, part.margin_factor};
     PatchPart high = low;
     low.region.max[axis] = middle;
     high.region.min[axis] = middle;
@@ -968,7 +972,6 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   runner.patches = partition.clusters;
   runner.rings = options.initial_rings ? options.initial_rings
                                        : int(kTrustSpread * epoch.epoch_rounds + kDecisionRadius + 2);
-  runner.margin_factor.assign(partition.clusters, 1.5);
   st.max_rings = runner.rings;
 
   DecimateParams params = options.simplify.params;
