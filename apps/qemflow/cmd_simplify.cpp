@@ -54,6 +54,21 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
+// The decimator's options, the same for the in-core and the out-of-core run (which
+// welds in its loader, from OocCommand::weld, and ignores `weld` here).
+nodes::SimplifyOptions simplify_options(const SimplifyArgs& args) {
+  nodes::SimplifyOptions options;
+  options.target_faces = args.target_faces;
+  options.ratio = args.ratio;
+  options.weld = !args.no_weld;
+  options.round_fraction = args.round_fraction;
+  options.candidate_fraction = args.candidate_fraction;
+  options.epoch_rounds = args.epoch_rounds;
+  options.cut_rise = args.cut_rise;
+  options.params = args.params;
+  return options;
+}
+
 void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
     throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
@@ -76,13 +91,7 @@ void run_simplify(const SimplifyArgs& args) {
     command.quiet = args.quiet;
     command.double_precision = args.double_precision;
     auto& o = command.options;
-    o.simplify.target_faces = args.target_faces;
-    o.simplify.ratio = args.ratio;
-    o.simplify.round_fraction = args.round_fraction;
-    o.simplify.candidate_fraction = args.candidate_fraction;
-    o.simplify.epoch_rounds = args.epoch_rounds;
-    o.simplify.cut_rise = args.cut_rise;
-    o.simplify.params = args.params;
+    o.simplify = simplify_options(args);
     o.partition.clusters = args.clusters == "auto" ? 0 : uint32_t(std::stoul(args.clusters));
     command.weld = !args.no_weld;
     o.in_core_faces = args.in_core_faces;
@@ -100,17 +109,8 @@ void run_simplify(const SimplifyArgs& args) {
   io::IndexedMesh mesh = io::read_mesh(args.input);
   const double seconds_read = seconds_since(t0);
 
-  nodes::SimplifyOptions options;
-  options.target_faces = args.target_faces;
-  options.ratio = args.ratio;
-  options.weld = !args.no_weld;
-  options.round_fraction = args.round_fraction;
-  options.candidate_fraction = args.candidate_fraction;
-  options.epoch_rounds = args.epoch_rounds;
-  options.cut_rise = args.cut_rise;
-  options.params = args.params;
   nodes::SimplifyResult result =
-      nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), options);
+      nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), simplify_options(args));
 
   const auto t1 = std::chrono::steady_clock::now();
   io::IndexedMesh out{std::move(result.points), std::move(result.triangles)};
