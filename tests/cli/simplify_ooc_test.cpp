@@ -31,6 +31,22 @@ void run_ok(const std::string& command) {
   ASSERT_EQ(run_command(command, &out), 0) << command << "\n" << out;
 }
 
+// `qemflow gen DIR/blob.ply GEN_ARGS`; returns the mesh's path.
+std::filesystem::path generate(const TempDir& dir, const std::string& gen_args) {
+  const auto mesh = dir / "blob.ply";
+  run_ok(q() + " gen " + mesh.string() + " " + gen_args + " --quiet");
+  return mesh;
+}
+
+// `qemflow simplify MESH DIR/out.ply ARGS` out of core with its scratch in DIR, in a
+// child process (so the report's peak RSS, VmHWM, is the run's own); returns the report.
+nlohmann::json simplify_with_report(const TempDir& dir, const std::filesystem::path& mesh, const std::string& args) {
+  const auto report = dir / "r.json";
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " " + args + " --quiet --report " +
+         report.string() + " --scratch " + dir.path().string());
+  return read_json(report);
+}
+
 // Runs in core and out of core with each cluster count; every output file must be the
 // in-core one byte for byte. `in_core_faces` keeps the run out of core down to that size.
 void expect_partition_invariant(const std::filesystem::path& input, const std::string& target,
@@ -59,16 +75,14 @@ void expect_partition_invariant(const std::filesystem::path& input, const std::s
 
 TEST(SimplifyOoc, GeneratedMeshAllTheWayOutOfCoreEqualsInCore) {
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 12000 --quiet");
+  const auto mesh = generate(dir, "--faces 12000");
   // --in-core-faces 1: every epoch, the exact-cut end game included, runs on patches.
   expect_partition_invariant(mesh, "--target-faces 301", {2, 4, 8, 16}, 1);
 }
 
 TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 12000 --quiet");
+  const auto mesh = generate(dir, "--faces 12000");
   expect_partition_invariant(mesh, "--target-faces 301 --deviation-weight 0", {4}, 1);
   // The weight reaches the decimator: plain QEM and the default give different meshes.
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "plain.ply").string() +
@@ -86,8 +100,7 @@ TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
 
 TEST(SimplifyOoc, Generated200kMeshEqualsInCore) {
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 200000 --shape figure --quiet");
+  const auto mesh = generate(dir, "--faces 200000 --shape figure");
   // Two passes over the patches (epoch 0 and one epoch of rounds), then in core. One
   // cluster count here: the 12k mesh above takes all four, the shared meshes 2/4/8/16.
   expect_partition_invariant(mesh, "--ratio 0.01", {8}, 150000);
@@ -118,8 +131,7 @@ TEST(SimplifyOoc, SameBytesWithOneThread) {
   // Deterministic for any --threads: every parallel step (gathers, patch builds, export,
   // the finish) runs in the job's arena and must not depend on how work is split.
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 12000 --quiet");
+  const auto mesh = generate(dir, "--faces 12000");
   for (const char* threads : {"1", "2"})
     run_ok(q() + " simplify " + mesh.string() + " " + (dir / (std::string("t") + threads + ".ply")).string() +
            " --target-faces 301 --clusters 4 --in-core-faces 3000 --threads " + threads + " --quiet --scratch " +
@@ -132,14 +144,10 @@ TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
   // rule (clusters_for); under a 64M budget the run goes in core at once
   // (no sampling, clusters or epochs) and still writes the --in-core file.
   TempDir dir;
-  const auto mesh = dir / "small.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 120000 --quiet");
+  const auto mesh = generate(dir, "--faces 120000");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.05 --in-core --quiet");
-  const auto report = dir / "r.json";
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-         " --ratio 0.05 --mem-budget 64M --quiet --report " + report.string() + " --scratch " + dir.path().string());
+  const auto r = simplify_with_report(dir, mesh, "--ratio 0.05 --mem-budget 64M");
   EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply"));
-  const auto r = read_json(report);
   EXPECT_EQ(r["patches"].get<int>(), 1);
   EXPECT_EQ(r["out_of_core_epochs"].get<int>(), 0);
   EXPECT_EQ(r["in_core_faces"].get<uint64_t>(), 120000u);
@@ -147,9 +155,8 @@ TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
 
 TEST(SimplifyOoc, SafeAndExactTarget) {
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
+  const auto mesh = generate(dir, "--faces 16000");
   const auto out = dir / "out.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 16000 --quiet");
   run_ok(q() + " simplify " + mesh.string() + " " + out.string() +
          " --target-faces 1000 --clusters 4 --in-core-faces 1 --quiet");
   std::string text;
@@ -165,15 +172,10 @@ TEST(SimplifyOoc, SafeAndExactTarget) {
 }
 
 TEST(SimplifyOoc, PeakRssStaysUnderTheBudget) {
-  // A child process (the CLI) whose budget forces many patches and out-of-core epochs;
-  // its report's peak RSS is VmHWM. (bench/ooc.sh and the README give the 2M-face run.)
+  // A budget that forces many patches and out-of-core epochs. (bench/ooc.sh and the
+  // README give the large runs.)
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
-  const auto report = dir / "r.json";
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-         " --ratio 0.01 --mem-budget 80M --quiet --report " + report.string() + " --scratch " + dir.path().string());
-  const auto r = read_json(report);
+  const auto r = simplify_with_report(dir, generate(dir, "--faces 300000"), "--ratio 0.01 --mem-budget 80M");
   EXPECT_GE(r["patches"].get<int>(), 4);
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 2);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
@@ -185,14 +187,10 @@ TEST(SimplifyOoc, PeakRssStaysUnderTheBudget) {
 // rather than run a patch over its lease; the output is still the in-core one.
 TEST(SimplifyOoc, PatchLargerThanItsLeaseIsSplitAndStaysUnderTheBudget) {
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
+  const auto mesh = generate(dir, "--faces 300000");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
-  const auto report = dir / "r.json";
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-         " --ratio 0.01 --clusters 2 --in-core-faces 150000 --mem-budget 110M --quiet --report " + report.string() + " --scratch " +
-         dir.path().string());
-  const auto r = read_json(report);
+  const auto r =
+      simplify_with_report(dir, mesh, "--ratio 0.01 --clusters 2 --in-core-faces 150000 --mem-budget 110M");
   EXPECT_GE(r["patch_splits"].get<int>(), 1);
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["governor_peak_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>() - r["baseline_bytes"].get<uint64_t>());
@@ -204,12 +202,7 @@ TEST(SimplifyOoc, PatchLargerThanItsLeaseIsSplitAndStaysUnderTheBudget) {
 // its lease and the process peaked at 98.6 MiB.
 TEST(SimplifyOoc, DemoSizedRunStaysUnderItsBudget) {
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 1M --seed 1 --quiet");
-  const auto report = dir / "r.json";
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-         " --ratio 0.01 --mem-budget 96M --quiet --report " + report.string() + " --scratch " + dir.path().string());
-  const auto r = read_json(report);
+  const auto r = simplify_with_report(dir, generate(dir, "--faces 1M --seed 1"), "--ratio 0.01 --mem-budget 96M");
   EXPECT_GE(r["patches"].get<int>(), 8);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 96ull << 20);
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 10000u);
@@ -248,8 +241,7 @@ TEST(SimplifyOoc, BadInputExits3AndLeavesNothing) {
 // naming the halo and the budget it would need at least (exit 4), nothing left.
 TEST(SimplifyOoc, PatchThatCannotFitItsHaloIsRefused) {
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
+  const auto mesh = generate(dir, "--faces 300000");
   expect_refused(dir, mesh, "--ratio 0.01 --clusters 2 --mem-budget 56M", 4, "-ring halo");
 }
 
@@ -257,8 +249,7 @@ TEST(SimplifyOoc, TargetTooLargeForTheBudgetIsRefused) {
   // The output is made in core: 270k output faces need ~51 MB there, more than a 64M
   // budget leaves; the run is refused (exit 4, the minimum budget named), not run over it.
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 300000 --quiet");
+  const auto mesh = generate(dir, "--faces 300000");
   expect_refused(dir, mesh, "--ratio 0.9 --mem-budget 64M", 4, "the minimum budget is");
 }
 
@@ -267,8 +258,7 @@ TEST(SimplifyOoc, FullScratchIsAResourceErrorAndLeavesNothing) {
   // directory on a filesystem without room is simulated by a scratch path under a
   // regular file (cannot create) - the same resource error path, exit 4.
   TempDir dir;
-  const auto mesh = dir / "blob.ply";
-  run_ok(q() + " gen " + mesh.string() + " --faces 20000 --quiet");
+  const auto mesh = generate(dir, "--faces 20000");
   const auto not_a_dir = dir / "file";
   std::ofstream(not_a_dir) << "x";
   std::string out;
