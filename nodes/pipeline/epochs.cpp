@@ -422,35 +422,38 @@ bool gather_reads(const ChunkMeta& meta, const PatchPart& part, const Box& halo_
   return meta.box.meets(halo_box);
 }
 
-// Upper bound of what load_candidates(state, part, box) gathers, from the chunk metas.
-uint64_t gather_bound(const MeshState& state, const PatchPart& part, const Box& box) {
-  uint64_t most = 0;
+// The frames a gather reads, with upper bounds of what it holds (from the chunk metas):
+// the patch's lease is sized from most_faces before anything is read.
+struct GatherPlan {
+  std::vector<FrameRef> frames;
+  uint64_t most_faces = 0, most_blob_bytes = 0;
+};
+
+// `part` null: every chunk (the in-core finish).
+GatherPlan plan_gather(const MeshState& state, const PatchPart* part, const Box& box) {
+  GatherPlan plan;
   for (const auto& c : state.chunks)
-    if (gather_reads(c.meta, part, box)) most += c.meta.faces;
-  return most;
+    if (!part || gather_reads(c.meta, *part, box)) {
+      plan.frames.push_back(c.frame);
+      plan.most_faces += c.meta.faces;
+      plan.most_blob_bytes += c.frame.count;
+    }
+  return plan;
 }
 
 // Loads the part's owned faces and every other face with a vertex in `box`; with
 // `part` null, everything (the in-core finish). At most `limit_faces` are held: a
 // gather that finds more keeps counting but holds nothing (over_limit), so a patch
 // never materializes beyond its lease.
-Gathered load_candidates(Job& job, ScratchStore& scratch, const MeshState& state, const PatchPart* part,
+Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan, const PatchPart* part,
                          const Box& box, uint64_t limit_faces = std::numeric_limits<uint64_t>::max()) {
-  std::vector<FrameRef> frames;
-  uint64_t most_faces = 0, most_blob_bytes = 0;
-  for (const auto& c : state.chunks)
-    if (!part || gather_reads(c.meta, *part, box)) {
-      frames.push_back(c.frame);
-      most_faces += c.meta.faces;
-      most_blob_bytes += c.frame.count;
-    }
   // Reserved up front at upper bounds: growth by doubling would hold the old and the new
   // arrays at once (a spike outside the patch lease); untouched reserved pages cost no RSS.
   Gathered g;
-  g.faces.reserve(std::min(most_faces, limit_faces));
-  g.vertices.reserve(most_blob_bytes / sizeof(VertexRecord) + 1);
+  g.faces.reserve(std::min(plan.most_faces, limit_faces));
+  g.vertices.reserve(plan.most_blob_bytes / sizeof(VertexRecord) + 1);
   engine::for_each_frame(
-      job, scratch, "epochs", "state frames", frames, 1,
+      job, scratch, "epochs", "state frames", plan.frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
         if (!part) return;
         const bool owners = header.tag == part->owner;
@@ -796,10 +799,11 @@ struct Runner {
       const Box box = owned_box(part).grown(margin);
       // The gather's upper bound from the chunk metas: when it fits, the gather cannot
       // go over; the lease is trimmed to what was found.
-      const uint64_t want = std::min(gather_bound(state, part, box) * kPatchBytesPerFace, patch_cap());
+      const GatherPlan gather = plan_gather(state, &part, box);
+      const uint64_t want = std::min(gather.most_faces * kPatchBytesPerFace, patch_cap());
       Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
       job.check();
-      Gathered g = load_candidates(job, scratch, state, &part, box, lease.bytes() / kPatchBytesPerFace);
+      Gathered g = load_candidates(job, scratch, gather, &part, box, lease.bytes() / kPatchBytesPerFace);
       stats.gathered_faces_total += g.found_faces;
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
@@ -1034,7 +1038,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                                        [&] { return job.stopped(); });
   PatchInput whole;
   {
-    Gathered g = load_candidates(job, scratch, *state, nullptr, Box{});
+    Gathered g = load_candidates(job, scratch, plan_gather(*state, nullptr, Box{}), nullptr, Box{});
     job.arena().execute([&] { whole = build_whole_patch(std::move(g)); });
   }
   replace_state(new_state());
