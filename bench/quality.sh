@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # In-core quality of `qemflow simplify` alone (no peers): output faces, epochs and the
 # symmetric `qemflow compare` errors ÷ bbox diagonal, on the shared meshes and a
-# generated 1M-face blob, at 1% (and 0.1% for the dragon and the blob).
+# generated 1M-face blob and terrain, at 1% (and 0.1% for the dragon and the blob).
 #
 #   bench/quality.sh [BUILD_DIR]      (default build/; the shared meshes from ../shared/data)
 set -euo pipefail
@@ -12,6 +12,7 @@ D="$repo/../shared/data"
 work="$(mktemp -d /tmp/qemflow-quality.XXXXXX)"
 trap 'rm -rf "$work"' EXIT
 "$Q" gen "$work/blob-1M.ply" --faces 1M --seed 1 --quiet
+"$Q" gen "$work/terrain-1M.ply" --shape terrain --faces 1M --seed 1 --quiet
 echo "mesh,ratio,output_faces,epochs,rms_rel,hausdorff_rel"
 run() {  # name input ratio
   [ -f "$2" ] || { echo "$1,$3,skipped (no $2)"; return; }
@@ -31,3 +32,4 @@ run igea "$D/igea.ply.zst" 0.01
 run bunny "$D/stanford-bunny.ply.zst" 0.01
 run blob-1M "$work/blob-1M.ply" 0.01
 run blob-1M "$work/blob-1M.ply" 0.001
+run terrain-1M "$work/terrain-1M.ply" 0.01

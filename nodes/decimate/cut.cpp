@@ -31,8 +31,7 @@ RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_
     return plan;
   }
   plan.kind = RoundPlan::Kind::bin_cut;
-  plan.cut.key = {cost_bin_upper(chosen), std::numeric_limits<uint64_t>::max(),
-                  std::numeric_limits<uint64_t>::max()};
+  plan.cut.key = EdgeKey::above_all_of(cost_bin_upper(chosen));
   return plan;
 }
 
@@ -75,9 +74,7 @@ EpochPlan plan_epoch(const RoundSummary& total, uint64_t faces, uint64_t target_
   plan.cuts.push_back(round.cut);
   for (uint32_t r = 1; r < rounds; ++r) {
     const size_t bin = std::min<size_t>(kCostBins - 1, first_bin + size_t(std::floor(r * options.cut_rise)));
-    plan.cuts.push_back({{cost_bin_upper(bin), std::numeric_limits<uint64_t>::max(),
-                          std::numeric_limits<uint64_t>::max()},
-                         false});
+    plan.cuts.push_back({EdgeKey::above_all_of(cost_bin_upper(bin)), false});
   }
   return plan;
 }

@@ -361,7 +361,7 @@ Vec3 PatchDecimator::edge_position(uint32_t a, uint32_t b) const {
 
 EdgeKey PatchDecimator::lme_key(uint32_t v) const {
   const uint32_t w = partner_[v];
-  return {best_cost_[v], std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
+  return EdgeKey::of(best_cost_[v], vgid_[v], vgid_[w]);
 }
 
 bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, uint32_t b,
@@ -442,11 +442,11 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   // Near-touched: v's own faces and edge costs are unchanged; only edges to touched
   // neighbours can have changed validity. The cached best stays unless one of them is
   // now valid and smaller (or the cached best itself leads to a touched vertex).
-  EdgeKey bound{std::numeric_limits<double>::infinity(), 0, 0};
+  EdgeKey bound = EdgeKey::below_all_of(std::numeric_limits<double>::infinity());
   const uint32_t b0 = best_[v];
   if (near_touched_only && b0 != kNone && touched_[b0]) near_touched_only = false;
   if (near_touched_only && b0 != kNone)
-    bound = {best_cost_[v], std::min(vgid_[v], vgid_[b0]), std::max(vgid_[v], vgid_[b0])};
+    bound = EdgeKey::of(best_cost_[v], vgid_[v], vgid_[b0]);
   if (!near_touched_only) {
     best_[v] = kNone;
     best_cost_[v] = 0.0;
@@ -471,7 +471,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       has_position = true;
     }
     if (cost == kSkipEdge) continue;
-    const EdgeKey key{cost, std::min(vgid_[v], vgid_[w]), std::max(vgid_[v], vgid_[w])};
+    const EdgeKey key = EdgeKey::of(cost, vgid_[v], vgid_[w]);
     if (key < bound) s.options.push_back({key, w, corner, twin, exact, has_position, position});
   }
   // The smallest valid key. An option whose key is only a lower bound gets its exact

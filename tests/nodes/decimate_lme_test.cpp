@@ -21,7 +21,10 @@
 namespace qemflow::nodes {
 namespace {
 
-using Key = std::tuple<double, uint64_t, uint64_t>;  // (cost, lo gid, hi gid)
+using Key = std::tuple<double, uint64_t, uint64_t, uint64_t>;  // (cost, tie, lo gid, hi gid)
+
+// The edge order's tie-break by its definition (decimator.hpp, EdgeKey).
+Key key_of(double cost, uint64_t lo, uint64_t hi) { return {cost, mix64(mix64(lo) ^ hi), lo, hi}; }
 
 Vec3 minus(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
 Vec3 cross3(const Vec3& a, const Vec3& b) {
@@ -146,24 +149,24 @@ std::set<Key> brute_force_candidates(const BruteMesh& m, const DecimateParams& p
     }
     const double deviation =
         collapse_deviation(m.position.at(a), area[0], m.position.at(b), area[1], collapsed);
-    const Key key{quadric_error(q, p) + params.deviation_weight * deviation, a, b};
+    const Key key = key_of(quadric_error(q, p) + params.deviation_weight * deviation, a, b);
     if (!valid(a, b, p)) continue;
     for (uint64_t v : {a, b})
       if (!best.count(v) || key < best[v]) best[v] = key;
   }
   std::set<Key> lmes;
   for (const auto& [v, key] : best)
-    if (best.count(std::get<1>(key)) && best.count(std::get<2>(key)) &&
-        best[std::get<1>(key)] == key && best[std::get<2>(key)] == key)
+    if (best.count(std::get<2>(key)) && best.count(std::get<3>(key)) &&
+        best[std::get<2>(key)] == key && best[std::get<3>(key)] == key)
       lmes.insert(key);
   std::set<Key> candidates;
   for (const Key& e : lmes) {
-    std::set<uint64_t> near = {std::get<1>(e), std::get<2>(e)};
-    for (uint64_t end : {std::get<1>(e), std::get<2>(e)})
+    std::set<uint64_t> near = {std::get<2>(e), std::get<3>(e)};
+    for (uint64_t end : {std::get<2>(e), std::get<3>(e)})
       for (uint64_t u : neighbours(end)) near.insert(u);
     bool smallest = true;
     for (const Key& other : lmes)
-      if (other < e && (near.count(std::get<1>(other)) || near.count(std::get<2>(other))))
+      if (other < e && (near.count(std::get<2>(other)) || near.count(std::get<3>(other))))
         smallest = false;
     if (smallest) candidates.insert(e);
   }
@@ -196,7 +199,7 @@ std::map<uint64_t, Quadric> brute_force_quadrics(const qemflow::testing::Mesh& m
 
 std::set<Key> decimator_candidates(const PatchDecimator& d) {
   std::set<Key> out;
-  for (const auto& c : d.candidates()) out.insert({c.key.cost, c.key.gid_lo, c.key.gid_hi});
+  for (const auto& c : d.candidates()) out.insert({c.key.cost, c.key.tie, c.key.gid_lo, c.key.gid_hi});
   return out;
 }
 
@@ -241,9 +244,11 @@ TEST(DecimateLme, HandCheckedFlatSquareWithAnOffCentreVertex) {
   // quadric's minimiser is the corner itself and the cost is 0 (every plane passes
   // through it); border edges (corner, corner) cost more (the far corner's border
   // plane is 1 away). Every centre-corner collapse is valid (no flip, link = the two
-  // opposite corners). Costs tie at 0, so the order is by global ids: best(0) =
-  // best(1) = (0, 1), while best(c) = (0, c) for c = 2, 3, 4 is not best at 0. The
-  // only LME, hence the only candidate, is (0, 1), removing 2 faces, placed at (0, 0).
+  // opposite corners). The quadric parts are exactly 0 for all four; the deviation
+  // charge is 0 in exact arithmetic but only (0, 1), whose corner is the origin, gets
+  // an exact 0 in floating point, so best(0) = best(1) = (0, 1), while best(c) =
+  // (0, c) for c = 2, 3, 4 is not best at 0. The only LME, hence the only candidate,
+  // is (0, 1), removing 2 faces, placed at (0, 0).
   qemflow::testing::Mesh m;
   m.points = {{0.3, 0.3, 0}, {0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
   m.triangles = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {0, 4, 1}};
@@ -270,6 +275,22 @@ TEST(DecimateLme, CandidatesEqualTheBruteForceOnAClosedMesh) {
 
 TEST(DecimateLme, CandidatesEqualTheBruteForceOnAMeshWithBorder) {
   check_rounds(qemflow::testing::grid(10, 0.02, 4), 6);  // 200 faces
+}
+
+TEST(DecimateLme, AFlatRegionFindsCandidatesAllOverIt) {
+  // Every interior edge of a flat grid collapses at no error, so the costs tie; the
+  // tie-break then decides how many LMEs a round finds. Ordered by global ids (row
+  // by row here), the smallest id would win every neighbourhood and a round would
+  // find a handful; the hashed tie spreads them like random priorities (about one
+  // per 15 vertices here; a random order finds about that many).
+  const auto m = qemflow::testing::grid(40);  // 1681 vertices, 3200 faces
+  for (double weight : {0.0, DecimateParams{}.deviation_weight}) {
+    DecimateParams params;
+    params.deviation_weight = weight;
+    PatchDecimator d(input_of(m), params);
+    d.prepare_round();
+    EXPECT_GE(d.candidates().size(), 60u) << "weight " << weight;
+  }
 }
 
 }  // namespace
