@@ -483,6 +483,16 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
     for (size_t j = 1; j < s.options.size(); ++j)
       if (s.options[j].key < s.options[i].key) i = j;
     Scratch::Option& o = s.options[i];
+    // Every edge at v is above the round's known cut (the smallest key, exact or a lower
+    // bound, is), so v's best edge is too: it can neither be collapsed nor block a
+    // candidate this round. Left stale (no best, so no LME) and refreshed in full by a
+    // later round. Decided before charging the smallest option: its lower bound is
+    // above the cut already.
+    if (cut && !near_touched_only && !checked && *cut < o.key) {
+      dirty_[v] = kDirtyStale;
+      best_cost_[v] = o.key.cost;  // the floor of v's edge costs (see prepare())
+      return;
+    }
     if (!o.exact) {
       if (!o.has_position) {
         // The same function of the same inputs as quadric_cost's position: the same bits.
@@ -493,14 +503,6 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       o.exact = true;
       if (o.key.cost != kSkipEdge && o.key < bound) continue;
     } else {
-      if (cut && !near_touched_only && !checked && *cut < o.key) {
-        // Every edge at v is above the round's known cut (the smallest exact cost is,
-        // and the others' lower bounds are not below it), so v's best edge is too: it
-        // can neither be collapsed nor block a candidate this round. Left stale (no
-        // best, so no LME) and refreshed in full by a later round.
-        dirty_[v] = kDirtyStale;
-        return;
-      }
       checked = true;
       // The same function of the same inputs as quadric_cost's position: the same bits.
       const Vec3 p = o.has_position ? o.position : edge_position(v, o.other);
@@ -751,7 +753,10 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     const bool stale = dirty_[v] >= kDirtyStale;
     // With a deviation charge, an edge's cost also changes when a neighbour is touched:
     // only then do v's costs not stay while v is untouched.
-    if (stale && keep_stale && !touched_[v] && !(charged && dirty_[v] == kDirtyStaleNearTouched))
+    // Its smallest edge cost (or lower bound) when it was left stale, kept in
+    // best_cost_, is another such floor, for this vertex alone.
+    if (stale && cut && !touched_[v] && !(charged && dirty_[v] == kDirtyStaleNearTouched) &&
+        (keep_stale || cut->cost < best_cost_[v]))
       return;
     dirty_[v] = 1;
     refresh_best(v, scratch.local(), !touched_[v] && !stale, cut);

@@ -301,7 +301,7 @@ class PatchDecimator {
   std::vector<uint32_t> adj_count_;
   std::vector<uint32_t> adj_;
   std::vector<uint32_t> best_;       // other endpoint of best edge, or kNone
-  std::vector<double> best_cost_;
+  std::vector<double> best_cost_;   // a stale vertex: the floor of its edge costs
   // Area of the vertex's faces as deviation() sums it (in ascending order of the face
   // areas); NaN: unknown (reset when the vertex is touched).
   std::vector<double> face_area_;
