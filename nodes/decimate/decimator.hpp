@@ -131,22 +131,24 @@ struct PatchInput {
 // every patch orders edges the same way.
 struct EdgeKey {
   double cost = 0.0;
-  uint64_t tie = 0;
   uint64_t gid_lo = 0, gid_hi = 0;
   static EdgeKey of(double cost, uint64_t gid_a, uint64_t gid_b) {
-    const uint64_t lo = gid_a < gid_b ? gid_a : gid_b, hi = gid_a < gid_b ? gid_b : gid_a;
-    return {cost, mix64(mix64(lo) ^ hi), lo, hi};
+    return {cost, gid_a < gid_b ? gid_a : gid_b, gid_a < gid_b ? gid_b : gid_a};
   }
-  // The largest key of cost `cost`: a cut taking every edge of that cost.
-  static EdgeKey above_all_of(double cost) {
-    constexpr uint64_t kMax = ~uint64_t{0};
-    return {cost, kMax, kMax, kMax};
+  // Bounds that are no edge (gid_lo == gid_hi): the largest key of cost `cost`, a cut
+  // taking every edge of that cost, and the smallest.
+  static EdgeKey above_all_of(double cost) { return {cost, ~uint64_t{0}, ~uint64_t{0}}; }
+  static EdgeKey below_all_of(double cost) { return {cost, 0, 0}; }
+  // Computed only when two costs are equal, which keeps the key (and every
+  // Candidate) as small as the order without a tie.
+  uint64_t tie() const {
+    if (gid_lo == gid_hi) return gid_lo == 0 ? 0 : ~uint64_t{0};
+    return mix64(mix64(gid_lo) ^ gid_hi);
   }
-  // The smallest key of cost `cost`.
-  static EdgeKey below_all_of(double cost) { return {cost, 0, 0, 0}; }
   friend bool operator<(const EdgeKey& a, const EdgeKey& b) {
     if (a.cost != b.cost) return a.cost < b.cost;
-    if (a.tie != b.tie) return a.tie < b.tie;
+    const uint64_t ta = a.tie(), tb = b.tie();
+    if (ta != tb) return ta < tb;
     if (a.gid_lo != b.gid_lo) return a.gid_lo < b.gid_lo;
     return a.gid_hi < b.gid_hi;
   }

@@ -199,7 +199,7 @@ std::map<uint64_t, Quadric> brute_force_quadrics(const qemflow::testing::Mesh& m
 
 std::set<Key> decimator_candidates(const PatchDecimator& d) {
   std::set<Key> out;
-  for (const auto& c : d.candidates()) out.insert({c.key.cost, c.key.tie, c.key.gid_lo, c.key.gid_hi});
+  for (const auto& c : d.candidates()) out.insert({c.key.cost, c.key.tie(), c.key.gid_lo, c.key.gid_hi});
   return out;
 }
 
