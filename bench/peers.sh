@@ -10,6 +10,7 @@
 #                            (default: the Stanford dragon, igea, gen:1M, gen:20M)
 #              PEERS_TOOLS   default "qemflow meshopt openmesh"
 #              PEERS_RATIOS  default "0.01 0.001"
+#              PEERS_CSV     output file (default bench/results/peers.csv)
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 repo="$(dirname "$here")"
@@ -18,7 +19,7 @@ qemflow="$build/apps/qemflow"
 work="$(mktemp -d /tmp/qemflow-peers.XXXXXX)"
 trap 'rm -rf "$work"' EXIT
 mkdir -p "$here/results"
-out="$here/results/peers.csv"
+out="${PEERS_CSV:-$here/results/peers.csv}"
 
 # The peer tool is not part of the CMake build (it links OpenMesh's Decimater and
 # meshoptimizer, which the library does not need).
