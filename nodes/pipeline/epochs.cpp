@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <atomic>
 #include <bit>
+#include <chrono>
 #include <cmath>
+#include <ctime>
 #include <cstring>
 #include <deque>
 #include <limits>
@@ -134,6 +136,39 @@ BlobView view_blob(const std::byte* data, size_t size) {
   v.vertex = reinterpret_cast<const VertexRecord*>(data + 16 + v.faces * sizeof(FaceRecord));
   return v;
 }
+
+// gid → index of its first record, by open addressing: one short probe sequence per
+// lookup instead of a binary search over the records (the gather's hot loop).
+class GidTable {
+ public:
+  static constexpr uint32_t kMissing = std::numeric_limits<uint32_t>::max();
+
+  template <class GidOf>
+  GidTable(size_t n, GidOf gid_of) {
+    size_t slots = 16;
+    while (slots < 2 * n) slots *= 2;
+    shift_ = 64 - std::countr_zero(slots);
+    mask_ = slots - 1;
+    slots_.assign(slots, {0, kMissing});
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t gid = gid_of(i);
+      size_t at = slot_of(gid);
+      while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
+      if (slots_[at].second == kMissing) slots_[at] = {gid, uint32_t(i)};  // a repeat keeps the first
+    }
+  }
+  uint32_t find(uint64_t gid) const {
+    size_t at = slot_of(gid);
+    while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
+    return slots_[at].second;
+  }
+
+ private:
+  size_t slot_of(uint64_t gid) const { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift_); }
+  int shift_ = 0;
+  size_t mask_ = 0;
+  std::vector<std::pair<uint64_t, uint32_t>> slots_;
+};
 
 double distance(const Point& a, const Point& b) {
   return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
@@ -384,6 +419,33 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
 
 // ---------------------------------------------------------------- patches
 
+double process_cpu_seconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+}
+
+// OocStats::phase_wall / phase_cpu: charge(phase) adds the time since the previous
+// charge (or the clock's start) to `phase`.
+enum Phase : size_t { kGather, kBuild, kSetup, kRounds, kSummary, kExtract, kExport };
+class PhaseClock {
+ public:
+  explicit PhaseClock(OocStats& stats) : stats_(stats) {}
+  void charge(Phase phase) {
+    const auto wall = std::chrono::steady_clock::now();
+    const double cpu = process_cpu_seconds();
+    stats_.phase_wall[phase] += std::chrono::duration<double>(wall - wall_).count();
+    stats_.phase_cpu[phase] += cpu - cpu_;
+    wall_ = wall;
+    cpu_ = cpu;
+  }
+
+ private:
+  OocStats& stats_;
+  std::chrono::steady_clock::time_point wall_ = std::chrono::steady_clock::now();
+  double cpu_ = process_cpu_seconds();
+};
+
 struct PatchPlan {
   enum class Kind { summary_only, bin_cut, exact_cut } kind = Kind::summary_only;
   std::vector<RoundCut> cuts;  // one per round
@@ -408,32 +470,93 @@ struct PatchPart {
 inline constexpr uint32_t kNotInPart = std::numeric_limits<uint32_t>::max();
 
 struct Gathered {
+  // Sorted by fid / by gid and unique for the finish (no part); as read for a part
+  // (a gid's records may repeat: equal copies).
   std::vector<FaceRecord> faces;
-  std::vector<VertexRecord> vertices;  // sorted by gid, unique
+  std::vector<VertexRecord> vertices;
   uint64_t found_faces = 0;  // faces the gather kept (= faces.size() unless over_limit)
   uint64_t owned_faces = 0;  // of them, owned by the part
   bool over_limit = false;   // more than the limit: nothing is held, found_faces is the need
 };
 
-// The chunks a part's gather reads: its owner's chunks that may hold owned faces, and
-// every chunk meeting the halo box.
-bool gather_reads(const ChunkMeta& meta, const PatchPart& part, const Box& halo_box) {
-  if (meta.owner == part.owner && part.whole) return true;
-  return meta.box.meets(halo_box);
-}
+// Where a part's halo can reach: each of its owner's chunk boxes (cut to the part's
+// region) grown by the margin. Much tighter than the owned box grown by the margin (an
+// owner's faces fill little of their box), so the gather reads and keeps fewer faces;
+// the BFS's margin check still catches a halo vertex outside it (margin redo). The
+// per-vertex test goes through a grid of cells marked where they meet a grown box (a
+// superset of the boxes' union).
+class HaloRegion {
+ public:
+  static constexpr int kCells = 32;  // per axis
 
-// The frames a gather reads, with upper bounds of what it holds (from the chunk metas):
-// the patch's lease is sized from most_faces before anything is read.
+  HaloRegion() = default;
+  HaloRegion(std::vector<Box> grown_boxes) : boxes_(std::move(grown_boxes)) {
+    for (const Box& b : boxes_) bounds_.add(b);
+    if (bounds_.empty()) return;
+    for (int k = 0; k < 3; ++k) {
+      const double extent = bounds_.max[k] - bounds_.min[k];
+      scale_[k] = extent > 0 ? kCells / extent : 0.0;
+    }
+    cells_.assign(size_t(kCells) * kCells * kCells, 0);
+    for (const Box& b : boxes_) {
+      const auto lo = cell_of(b.min), hi = cell_of(b.max);
+      for (int x = lo[0]; x <= hi[0]; ++x)
+        for (int y = lo[1]; y <= hi[1]; ++y)
+          for (int z = lo[2]; z <= hi[2]; ++z) cells_[index(x, y, z)] = 1;
+    }
+  }
+
+  const Box& bounds() const { return bounds_; }
+  bool meets(const Box& box) const {
+    if (!bounds_.meets(box)) return false;
+    for (const Box& b : boxes_)
+      if (b.meets(box)) return true;
+    return false;
+  }
+  bool contains(const Point& p) const {
+    if (!bounds_.contains(p)) return false;
+    const auto c = cell_of(p);
+    return cells_[index(c[0], c[1], c[2])];
+  }
+
+ private:
+  std::array<int, 3> cell_of(const Point& p) const {
+    std::array<int, 3> c;
+    for (int k = 0; k < 3; ++k)
+      c[k] = int(std::clamp((p[k] - bounds_.min[k]) * scale_[k], 0.0, double(kCells - 1)));
+    return c;
+  }
+  static size_t index(int x, int y, int z) { return (size_t(x) * kCells + size_t(y)) * kCells + size_t(z); }
+
+  std::vector<Box> boxes_;
+  Box bounds_;
+  std::array<double, 3> scale_{};
+  std::vector<uint8_t> cells_;
+};
+
+// The frames a gather reads (its owner's chunks that may hold owned faces, and every
+// chunk meeting the halo region), with upper bounds of what it holds (from the chunk
+// metas): the patch's lease is sized from most_faces before anything is read.
 struct GatherPlan {
   std::vector<FrameRef> frames;
   uint64_t most_faces = 0, most_blob_bytes = 0;
+  HaloRegion region;
 };
 
-// `part` null: every chunk (the in-core finish).
-GatherPlan plan_gather(const MeshState& state, const PatchPart* part, const Box& box) {
+// `part` null: every chunk (the in-core finish). `margin`: the halo's reach.
+GatherPlan plan_gather(const MeshState& state, const PatchPart* part, double margin) {
   GatherPlan plan;
+  if (part) {
+    std::vector<Box> grown;
+    for (const auto& c : state.chunks) {
+      if (c.meta.owner != part->owner) continue;
+      const Box owned = part->whole ? c.meta.box : c.meta.box.intersected(part->region);
+      if (!owned.empty()) grown.push_back(owned.grown(margin));
+    }
+    plan.region = HaloRegion(std::move(grown));
+  }
   for (const auto& c : state.chunks)
-    if (!part || gather_reads(c.meta, *part, box)) {
+    if (!part || (c.meta.owner == part->owner && part->whole) || plan.region.meets(c.meta.box)) {
       plan.frames.push_back(c.frame);
       plan.most_faces += c.meta.faces;
       plan.most_blob_bytes += c.frame.count;
@@ -441,12 +564,12 @@ GatherPlan plan_gather(const MeshState& state, const PatchPart* part, const Box&
   return plan;
 }
 
-// Loads the part's owned faces and every other face with a vertex in `box`; with
+// Loads the part's owned faces and every other face with a vertex in the plan's region; with
 // `part` null, everything (the in-core finish). At most `limit_faces` are held: a
 // gather that finds more keeps counting but holds nothing (over_limit), so a patch
 // never materializes beyond its lease.
 Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan, const PatchPart* part,
-                         const Box& box, uint64_t limit_faces = std::numeric_limits<uint64_t>::max()) {
+                         uint64_t limit_faces = std::numeric_limits<uint64_t>::max()) {
   // Reserved up front at upper bounds: growth by doubling would hold the old and the new
   // arrays at once (a spike outside the patch lease); untouched reserved pages cost no RSS.
   Gathered g;
@@ -462,12 +585,10 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
         // Per vertex: inside the box? (Another owner's chunk wholly inside is kept as it
         // is.) Corners are found in a compact gid array, and the kept faces' vertices
         // are marked. The owner's faces are owned when their centroid is in the region.
-        std::vector<uint64_t> gids(v.vertices);
         std::vector<uint8_t> inside(v.vertices), used(v.vertices, 0);
         bool all_inside = true, any_inside = false;
         for (uint64_t i = 0; i < v.vertices; ++i) {
-          gids[i] = v.vertex[i].gid;
-          inside[i] = box.contains(v.vertex[i].position);
+          inside[i] = plan.region.contains(v.vertex[i].position);
           all_inside = all_inside && inside[i];
           any_inside = any_inside || inside[i];
         }
@@ -477,10 +598,11 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
           records.swap(empty);
           return;
         }
+        const GidTable table(v.vertices, [&](size_t i) { return v.vertex[i].gid; });
         auto index_of = [&](uint64_t gid) {
-          const auto it = std::lower_bound(gids.begin(), gids.end(), gid);
-          if (it == gids.end() || *it != gid) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
-          return size_t(it - gids.begin());
+          const uint32_t i = table.find(gid);
+          if (i == GidTable::kMissing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+          return size_t(i);
         };
         std::vector<FaceRecord> kept;
         for (uint64_t i = 0; i < v.faces; ++i) {
@@ -521,8 +643,11 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
     release_memory(g.vertices);
     return g;
   }
-  // Keys are unique (face ids; a gid's records are equal copies), so a parallel sort
-  // gives the same arrays. In the job's arena: --threads holds here too.
+  // A patch's arrays stay as read (build_patch dedups the vertices and orders only what
+  // it selects); the finish's are sorted here. Keys are unique (face ids; a gid's
+  // records are equal copies), so a parallel sort gives the same arrays. In the job's
+  // arena: --threads holds here too.
+  if (part) return g;
   job.arena().execute([&] {
     tbb::parallel_sort(g.faces.begin(), g.faces.end(),
                        [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
@@ -540,41 +665,31 @@ struct BuiltPatch {
   bool margin_too_small = false;
 };
 
-// Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks.
+// Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. The
+// gathered arrays are in read order with repeated vertex records: the first record of
+// a gid stands for it, and only the selection is put in gid / fid order (sorting
+// 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
 BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
   BuiltPatch out;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const VertexRecord* vb = g.vertices.data();
-  // Corner → local vertex through an open-addressing table gid → index (one probe
-  // sequence per corner instead of a binary search over the 120-byte records), in parallel.
-  size_t slots = 16;
-  while (slots < 2 * nv) slots *= 2;
-  const int shift = 64 - std::countr_zero(slots);
-  constexpr uint32_t kEmpty = std::numeric_limits<uint32_t>::max();
-  std::vector<std::pair<uint64_t, uint32_t>> table(slots, {0, kEmpty});
-  auto slot_of = [shift](uint64_t gid) { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift); };
-  for (size_t v = 0; v < nv; ++v) {
-    size_t at = slot_of(vb[v].gid);
-    while (table[at].second != kEmpty) at = (at + 1) & (slots - 1);
-    table[at] = {vb[v].gid, uint32_t(v)};
-  }
+  // Corner → local vertex through a gid table (a repeated record maps to the first), in parallel.
+  std::optional<GidTable> table(std::in_place, nv, [vb](size_t v) { return vb[v].gid; });
   std::vector<std::array<uint32_t, 3>> local(nf);
   std::atomic<bool> missing = false;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
     for (size_t f = range.begin(); f < range.end(); ++f)
       for (int k = 0; k < 3; ++k) {
-        const uint64_t gid = g.faces[f].v[k];
-        size_t at = slot_of(gid);
-        while (table[at].second != kEmpty && table[at].first != gid) at = (at + 1) & (slots - 1);
-        if (table[at].second == kEmpty) {
+        const uint32_t v = table->find(g.faces[f].v[k]);
+        if (v == GidTable::kMissing) {
           missing = true;
           continue;
         }
-        local[f][k] = table[at].second;
+        local[f][k] = v;
       }
   });
   if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
-  table = {};
+  table.reset();
   std::vector<uint32_t> count(nv + 1, 0);
   for (size_t f = 0; f < nf; ++f)
     for (uint32_t v : local[f]) ++count[v + 1];
@@ -583,8 +698,9 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
   {
     std::vector<uint32_t> at(count.begin(), count.end() - 1);
     for (size_t f = 0; f < nf; ++f)
-      for (uint32_t v : local[f]) fan[at[v]++] = uint32_t(f);  // faces ascending: fans in fid order
+      for (uint32_t v : local[f]) fan[at[v]++] = uint32_t(f);
   }
+  // The BFS selects sets (the order of fans does not matter).
   std::vector<uint8_t> fsel(nf, 0), vsel(nv, 0);
   std::vector<uint32_t> frontier, next;
   for (size_t f = 0; f < nf; ++f)
@@ -616,13 +732,19 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
     }
     frontier.swap(next);
   }
-  // Local numbering of the selected vertices, in gid order.
+  release_memory(frontier);
+  release_memory(next);
+  // The selection in gid order (vertices) and fid order (faces): (key, index) pairs.
+  std::vector<std::pair<uint64_t, uint32_t>> vorder, forder;
+  vorder.reserve(size_t(std::count(vsel.begin(), vsel.end(), uint8_t(1))));
+  for (size_t v = 0; v < nv; ++v)
+    if (vsel[v]) vorder.push_back({vb[v].gid, uint32_t(v)});
+  tbb::parallel_sort(vorder.begin(), vorder.end());
+  const size_t kept_v = vorder.size();
   PatchInput& in = out.input;
   std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
   const bool given_quadrics = nv > 0 && vb[0].has_quadric;
   // Exact sizes (no growth spikes).
-  const size_t kept_v = size_t(std::count(vsel.begin(), vsel.end(), uint8_t(1)));
-  const size_t kept_f = size_t(std::count(fsel.begin(), fsel.end(), uint8_t(1)));
   in.vertex_gids.reserve(kept_v);
   in.positions.reserve(kept_v);
   if (given_quadrics) {
@@ -632,14 +754,10 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
   if (!whole) {
     in.incomplete.reserve(kept_v);
     in.owned_vertex.reserve(kept_v);
-    in.owned_face.reserve(kept_f);
   }
-  in.faces.reserve(kept_f);
-  in.face_gids.reserve(kept_f);
-  for (size_t v = 0; v < nv; ++v) {
-    if (!vsel[v]) continue;
+  for (const auto& [gid, v] : vorder) {
     new_index[v] = uint32_t(in.vertex_gids.size());
-    in.vertex_gids.push_back(vb[v].gid);
+    in.vertex_gids.push_back(gid);
     in.positions.push_back(vb[v].position);
     if (given_quadrics) {
       in.quadrics.push_back(vb[v].quadric);
@@ -662,10 +780,20 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
       in.owned_vertex.push_back(!incomplete && owner == p);
     }
   }
-  for (size_t f = 0; f < nf; ++f) {
-    if (!fsel[f]) continue;
+  release_memory(vorder);
+  release_memory(fan);
+  release_memory(count);
+  forder.reserve(size_t(std::count(fsel.begin(), fsel.end(), uint8_t(1))));
+  for (size_t f = 0; f < nf; ++f)
+    if (fsel[f]) forder.push_back({g.faces[f].fid, uint32_t(f)});
+  tbb::parallel_sort(forder.begin(), forder.end());
+  const size_t kept_f = forder.size();
+  in.faces.reserve(kept_f);
+  in.face_gids.reserve(kept_f);
+  if (!whole) in.owned_face.reserve(kept_f);
+  for (const auto& [fid, f] : forder) {
     in.faces.push_back({new_index[local[f][0]], new_index[local[f][1]], new_index[local[f][2]]});
-    in.face_gids.push_back(g.faces[f].fid);
+    in.face_gids.push_back(fid);
     if (!whole) in.owned_face.push_back(g.faces[f].owner == p);
   }
   return out;
@@ -793,18 +921,19 @@ struct Runner {
                 const DecimateParams& params, std::vector<std::vector<Candidate>>* candidates, uint64_t needed,
                 RoundSummary& total) {
     const uint32_t p = part.owner;
+    PhaseClock clock(stats);
     for (;;) {
       job.check();
       const double margin = (rings + 2) * owner_edge[p] * part.margin_factor;
-      const Box box = owned_box(part).grown(margin);
       // The gather's upper bound from the chunk metas: when it fits, the gather cannot
       // go over; the lease is trimmed to what was found.
-      const GatherPlan gather = plan_gather(state, &part, box);
+      const GatherPlan gather = plan_gather(state, &part, margin);
       const uint64_t want = std::min(gather.most_faces * kPatchBytesPerFace, patch_cap());
       Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
       job.check();
-      Gathered g = load_candidates(job, scratch, gather, &part, box, lease.bytes() / kPatchBytesPerFace);
+      Gathered g = load_candidates(job, scratch, gather, &part, lease.bytes() / kPatchBytesPerFace);
       stats.gathered_faces_total += g.found_faces;
+      clock.charge(kGather);
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
         if (g.owned_faces <= kSmallestPart) refuse_part(g);
@@ -815,6 +944,7 @@ struct Runner {
       BuiltPatch built;
       job.arena().execute([&] { built = build_patch(g, p, rings, false); });
       g = {};
+      clock.charge(kBuild);
       if (built.margin_too_small) {
         part.margin_factor *= 2;
         ++stats.margin_redos;
@@ -829,10 +959,13 @@ struct Runner {
       std::optional<PatchOutput> out;
       job.arena().execute([&] {
         PatchDecimator d(std::move(built.input), params);
+        clock.charge(kSetup);
         run_patch_plan(d, plan);
+        clock.charge(kRounds);
         d.prepare_round();
         summary = d.summarize();
         if (candidates) owned = trim_for_exact_cut(d.owned_candidates(), needed);
+        clock.charge(kSummary);
         if (summary.inexact_candidates) {
           ok = false;
           return;
@@ -842,6 +975,7 @@ struct Runner {
           if (out->untrusted_vertices) ok = false;
         }
       });
+      clock.charge(kExtract);  // the decimator's destruction included
       if (!ok) {
         rings += 2;
         ++stats.halo_redos;
@@ -851,6 +985,7 @@ struct Runner {
       total.add(summary);
       if (candidates) (*candidates).push_back(std::move(owned));
       if (next) export_patch(*out, p, *next);
+      clock.charge(kExport);
       return true;
     }
   }
@@ -1038,7 +1173,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                                        [&] { return job.stopped(); });
   PatchInput whole;
   {
-    Gathered g = load_candidates(job, scratch, plan_gather(*state, nullptr, Box{}), nullptr, Box{});
+    Gathered g = load_candidates(job, scratch, plan_gather(*state, nullptr, 0.0), nullptr);
     job.arena().execute([&] { whole = build_whole_patch(std::move(g)); });
   }
   replace_state(new_state());

@@ -18,7 +18,8 @@
 //   holding face records {fid, 3 vertex gids, owner} and the records of their vertices
 //   {gid, position, quadric, degree, lock}; every chunk holds faces of one owner.
 // - A patch's halo: faces within `rings` rings of its owned faces, found by BFS over
-//   the faces with a vertex in the owned box grown by a margin; a vertex whose fan is
+//   the faces with a vertex near the owned faces (their chunks' boxes grown by a
+//   margin; chunks that meet none are not read); a vertex whose fan is
 //   not whole in what was loaded (loaded faces < degree) may not be expanded: then the
 //   margin doubles and the patch is gathered again.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
@@ -76,6 +77,15 @@ struct OocStats {
   // (owned + every face the box filter kept), faces of the built patches (owned + halo)
   // and owned faces; their ratios say what the halo and the gather cost.
   uint64_t gathered_faces_total = 0, patch_faces_total = 0, owned_faces_total = 0;
+  // Where the out-of-core patch work goes (redos included): wall and process CPU seconds
+  // per phase of run_part, in this order: gather (plan, read, filter, sort), build (BFS
+  // halo, PatchInput), setup (PatchDecimator's constructor), rounds (the epoch's cuts),
+  // summary (prepare_round, summarize, candidates), extract, export (chunks, encode,
+  // write). CPU includes the I/O thread's work while the phase ran.
+  static constexpr size_t kPhases = 7;
+  static constexpr std::array<const char*, kPhases> kPhaseNames{"gather", "build",   "setup",  "rounds",
+                                                                "summary", "extract", "export"};
+  std::array<double, kPhases> phase_wall{}, phase_cpu{};
 };
 
 struct OocResult {
