@@ -9,9 +9,11 @@
 #include <cstring>
 #include <deque>
 #include <limits>
+#include <map>
 #include <memory>
 #include <mutex>
 
+#include <oneapi/tbb/enumerable_thread_specific.h>
 #include <oneapi/tbb/parallel_for.h>
 #include <oneapi/tbb/parallel_sort.h>
 
@@ -104,7 +106,8 @@ struct Box {
 };
 
 // A chunk blob: u64 faces, u64 vertices, FaceRecord[faces], VertexRecord[vertices]
-// (vertices sorted by gid). Stored as one frame of 1-byte records.
+// (each gid once; in gid order from the conversion, in first-use order from an export:
+// readers look gids up in a GidTable). Stored as one frame of 1-byte records.
 struct ChunkMeta {
   uint32_t owner = 0;
   uint64_t faces = 0;
@@ -275,6 +278,12 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
   // A batch per compute thread: what is in flight here (blob + encoded frame, ~2.6 MB
   // per 8192-face chunk) is outside the patch lease, so it stays this small.
   const size_t kBatch = size_t(std::max(1, job.threads()));
+  // A chunk's vertices in first-use order, deduplicated by stamping each output vertex
+  // with the chunk's number (per thread: 4 bytes per output vertex).
+  tbb::enumerable_thread_specific<std::vector<uint32_t>> stamps(
+      [&] { return std::vector<uint32_t>(out.positions.size(), std::numeric_limits<uint32_t>::max()); });
+  // Raw frames are made in place: the blob is built inside the frame (no copy).
+  const bool raw = engine::default_frame_codec().raw;
   std::vector<Made> made;
   for (size_t batch = 0; batch < chunks; batch += kBatch) {
     const size_t n_batch = std::min(kBatch, chunks - batch);
@@ -283,19 +292,24 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
       tbb::parallel_for(size_t(0), n_batch, [&](size_t i) {
         const size_t first = (batch + i) * chunk_faces;
         const size_t n = std::min<size_t>(chunk_faces, order.size() - first);
-        // Local vertex ids ascending = gids ascending (the output is sorted by gid).
+        std::vector<uint32_t>& stamp = stamps.local();
+        const uint32_t mark = uint32_t(batch + i);
         std::vector<uint32_t> locals;
         locals.reserve(3 * n);
         for (size_t j = first; j < first + n; ++j)
-          for (uint32_t v : out.faces[order[j]]) locals.push_back(v);
-        std::sort(locals.begin(), locals.end());
-        locals.erase(std::unique(locals.begin(), locals.end()), locals.end());
+          for (uint32_t v : out.faces[order[j]])
+            if (stamp[v] != mark) {
+              stamp[v] = mark;
+              locals.push_back(v);
+            }
         const uint64_t nf = n, nv = locals.size();
-        Bytes blob(blob_bytes(nf, nv));
-        std::memcpy(blob.data(), &nf, 8);
-        std::memcpy(blob.data() + 8, &nv, 8);
-        auto* faces = reinterpret_cast<FaceRecord*>(blob.data() + 16);
-        auto* vertices = reinterpret_cast<VertexRecord*>(blob.data() + 16 + nf * sizeof(FaceRecord));
+        const size_t size = blob_bytes(nf, nv);
+        Bytes frame(raw ? engine::frame_header_bytes + size + sizeof(uint64_t) : size);
+        std::byte* blob = frame.data() + (raw ? engine::frame_header_bytes : 0);
+        std::memcpy(blob, &nf, 8);
+        std::memcpy(blob + 8, &nv, 8);
+        auto* faces = reinterpret_cast<FaceRecord*>(blob + 16);
+        auto* vertices = reinterpret_cast<VertexRecord*>(blob + 16 + nf * sizeof(FaceRecord));
         ChunkMeta& meta = made[i].meta;
         meta.owner = owner;
         meta.faces = nf;
@@ -320,8 +334,15 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           vertices[k] = r;
           meta.box.add(r.position);
         }
-        made[i].blob_size = blob.size();
-        made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob.data(), blob.size()));
+        made[i].blob_size = size;
+        if (raw) {
+          const auto envelope = engine::raw_frame_envelope(owner, 1, {{blob, size}}, size);
+          std::memcpy(frame.data(), envelope.header.data(), envelope.header.size());
+          std::memcpy(blob + size, envelope.trailer.data(), envelope.trailer.size());
+          made[i].encoded = std::make_shared<Bytes>(std::move(frame));
+        } else {
+          made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob, size));
+        }
       });
     });
     for (auto& m : made) write_encoded_chunk(job, scratch, state, m.meta, m.blob_size, std::move(m.encoded), Lease());
@@ -427,7 +448,7 @@ double process_cpu_seconds() {
 
 // OocStats::phase_wall / phase_cpu: charge(phase) adds the time since the previous
 // charge (or the clock's start) to `phase`.
-enum Phase : size_t { kGather, kBuild, kSetup, kRounds, kSummary, kExtract, kExport };
+enum Phase : size_t { kGather, kBuild, kSetup, kFirstRound, kRounds, kSummary, kExtract, kExport };
 class PhaseClock {
  public:
   explicit PhaseClock(OocStats& stats) : stats_(stats) {}
@@ -842,13 +863,14 @@ PatchInput build_whole_patch(Gathered&& g) {
   return in;
 }
 
-void run_patch_plan(PatchDecimator& d, const PatchPlan& plan) {
+void run_patch_plan(PatchDecimator& d, const PatchPlan& plan, PhaseClock& clock) {
   if (plan.kind == PatchPlan::Kind::summary_only) return;
   // The cut is known, so every round may skip the vertices whose edges all lie above
   // it (the summary after the epoch refreshes them with a plain prepare_round).
-  for (const RoundCut& cut : plan.cuts) {
-    d.prepare_round(cut);
-    d.apply_cut(cut);
+  for (size_t round = 0; round < plan.cuts.size(); ++round) {
+    d.prepare_round(plan.cuts[round]);
+    d.apply_cut(plan.cuts[round]);
+    if (round == 0) clock.charge(kFirstRound);
   }
 }
 
@@ -875,7 +897,15 @@ struct Runner {
   const OocOptions& options;
   OocStats& stats;
   uint32_t patches = 1;
-  int rings = 0;
+  // Halo rings of the current pass: what its plan needs (pass_rings, set per pass) plus
+  // what halo redos added for passes of that need (a redo's +2 sticks to the same kind
+  // of pass: a summary-only pass does not widen the E-round passes' halos, nor back).
+  int pass_rings = 0;
+  std::map<int, int> redo_rings;
+  int rings() const {
+    const auto it = redo_rings.find(pass_rings);
+    return pass_rings + (it == redo_rings.end() ? 0 : it->second);
+  }
   std::vector<Box> owner_box;
   std::vector<double> owner_edge;  // mean edge length of the owned faces
   std::vector<uint64_t> owner_faces;
@@ -924,6 +954,7 @@ struct Runner {
     PhaseClock clock(stats);
     for (;;) {
       job.check();
+      const int rings = this->rings();
       const double margin = (rings + 2) * owner_edge[p] * part.margin_factor;
       // The gather's upper bound from the chunk metas: when it fits, the gather cannot
       // go over; the lease is trimmed to what was found.
@@ -960,7 +991,7 @@ struct Runner {
       job.arena().execute([&] {
         PatchDecimator d(std::move(built.input), params);
         clock.charge(kSetup);
-        run_patch_plan(d, plan);
+        run_patch_plan(d, plan, clock);
         clock.charge(kRounds);
         d.prepare_round();
         summary = d.summarize();
@@ -977,9 +1008,9 @@ struct Runner {
       });
       clock.charge(kExtract);  // the decimator's destruction included
       if (!ok) {
-        rings += 2;
+        redo_rings[pass_rings] += 2;
         ++stats.halo_redos;
-        stats.max_rings = std::max(stats.max_rings, rings);
+        stats.max_rings = std::max(stats.max_rings, this->rings());
         continue;
       }
       total.add(summary);
@@ -998,7 +1029,7 @@ struct Runner {
     const uint64_t need = g.found_faces * kPatchBytesPerFace;
     const uint64_t minimum = need / 3 * 4 + job.governor().baseline();  // patch_cap() is 3/4 of the capacity
     throw Error(ErrorKind::resource,
-                "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings) +
+                "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings()) +
                     "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
                     " of memory but --mem-budget " + config::format_size(job.governor().budget()) +
                     " lets a patch hold " + config::format_size(patch_cap()) + "; this needs a budget of at least " +
@@ -1109,9 +1140,17 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
 
   Runner runner{job, scratch, options, st};
   runner.patches = partition.clusters;
-  runner.rings = options.initial_rings ? options.initial_rings
-                                       : int(kTrustSpread * epoch.epoch_rounds + kDecisionRadius + 2);
-  st.max_rings = runner.rings;
+  // A pass's halo: kTrustSpread rings per round of its plan, the decision radius, 2 to
+  // spare, and kInitialQuadricRadius while the decimator computes the quadrics (the
+  // first pass). The first pass and an exact cut's candidate pass run no rounds, so
+  // their halos are a fraction of an E-round pass's. (--initial-rings: one count for all.)
+  auto set_pass_rings = [&](size_t rounds, bool computes_quadrics) {
+    runner.pass_rings = options.initial_rings
+                            ? options.initial_rings
+                            : int(kTrustSpread * rounds + kDecisionRadius + 2 +
+                                  (computes_quadrics ? kInitialQuadricRadius : 0));
+    st.max_rings = std::max(st.max_rings, runner.rings());
+  };
 
   DecimateParams params = options.simplify.params;
   bool relaxed = !(params.min_normal_cos > 0.0);
@@ -1144,6 +1183,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
           plan = {PatchPlan::Kind::bin_cut, e.cuts};
         } else {
           std::vector<std::vector<Candidate>> lists;
+          set_pass_rings(0, false);
           runner.pass(*state, nullptr, {}, params, &lists, e.needed, 0.3, 0.3);
           const std::vector<std::span<const Candidate>> spans(lists.begin(), lists.end());
           const auto cut = exact_cut(spans, e.needed);
@@ -1151,6 +1191,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
           plan = {PatchPlan::Kind::exact_cut, {*cut}};
         }
       }
+      set_pass_rings(plan.cuts.size(), first);
       auto next = new_state();
       const double done = std::min(1.0, double(st.input_faces - state->faces) /
                                             double(std::max<uint64_t>(1, st.input_faces - st.target_faces)));

@@ -78,13 +78,14 @@ struct OocStats {
   // and owned faces; their ratios say what the halo and the gather cost.
   uint64_t gathered_faces_total = 0, patch_faces_total = 0, owned_faces_total = 0;
   // Where the out-of-core patch work goes (redos included): wall and process CPU seconds
-  // per phase of run_part, in this order: gather (plan, read, filter, sort), build (BFS
-  // halo, PatchInput), setup (PatchDecimator's constructor), rounds (the epoch's cuts),
+  // per phase of run_part, in this order: gather (plan, read, filter), build (BFS halo,
+  // PatchInput), setup (PatchDecimator's constructor), first_round (the epoch's first
+  // cut: a fresh decimator evaluates every vertex's edges), rounds (the other cuts),
   // summary (prepare_round, summarize, candidates), extract, export (chunks, encode,
   // write). CPU includes the I/O thread's work while the phase ran.
-  static constexpr size_t kPhases = 7;
-  static constexpr std::array<const char*, kPhases> kPhaseNames{"gather", "build",   "setup",  "rounds",
-                                                                "summary", "extract", "export"};
+  static constexpr size_t kPhases = 8;
+  static constexpr std::array<const char*, kPhases> kPhaseNames{
+      "gather", "build", "setup", "first_round", "rounds", "summary", "extract", "export"};
   std::array<double, kPhases> phase_wall{}, phase_cpu{};
 };
 
