@@ -897,6 +897,7 @@ struct Runner {
   const OocOptions& options;
   OocStats& stats;
   uint32_t patches = 1;
+  uint64_t chunk_faces = 8192;  // faces per state chunk the export writes
   // Halo rings of the current pass: what its plan needs (pass_rings, set per pass) plus
   // what halo redos added for passes of that need (a redo's +2 sticks to the same kind
   // of pass: a summary-only pass does not widen the E-round passes' halos, nor back).
@@ -1103,7 +1104,7 @@ struct Runner {
     std::vector<uint32_t> order(keyed.size());
     for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
     release_memory(keyed);
-    write_output_as_chunks(job, scratch, next, p, out, order, options.chunk_faces);
+    write_output_as_chunks(job, scratch, next, p, out, order, chunk_faces);
     job.io().drain();
     job.check();
   }
@@ -1136,10 +1137,17 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
 
   auto state = std::make_unique<MeshState>();
   state->file = scratch.create_file("state-0");
-  convert_blocks(job, scratch, mesh, partition, options.chunk_faces, *state);
+  // At least ~32 chunks per patch: a gather reads whole chunks and filters them by
+  // their boxes, so chunks much larger than a patch's halo band make small patches
+  // (the 1M-face demo's 60K) read several times their own state. Any chunking gives
+  // the same patches.
+  const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,
+                                                    std::min<uint64_t>(1024, options.chunk_faces), options.chunk_faces);
+  convert_blocks(job, scratch, mesh, partition, chunk_faces, *state);
 
   Runner runner{job, scratch, options, st};
   runner.patches = partition.clusters;
+  runner.chunk_faces = chunk_faces;
   // A pass's halo: kTrustSpread rings per round of its plan, the decision radius, 2 to
   // spare, and kInitialQuadricRadius while the decimator computes the quadrics (the
   // first pass). The first pass and an exact cut's candidate pass run no rounds, so

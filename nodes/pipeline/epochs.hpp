@@ -58,7 +58,7 @@ struct OocOptions {
   // Tests set 1 to keep the out-of-core epochs going to the end.
   uint64_t in_core_faces = 0;
   int initial_rings = 0;             // 0: kTrustSpread * E + kDecisionRadius + 2
-  uint64_t chunk_faces = 8192;       // faces per state chunk
+  uint64_t chunk_faces = 8192;       // most faces per state chunk (fewer for small patches)
 };
 
 struct OocStats {
