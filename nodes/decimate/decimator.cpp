@@ -16,6 +16,8 @@ namespace qemflow::nodes {
 namespace {
 
 constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+// Largest corner-list pool: offsets into it (adj_begin_) are 32-bit.
+constexpr uint64_t kMaxPool = std::numeric_limits<uint32_t>::max();
 // corner_cost_ values: not computed yet / the edge has no finite cost or position.
 constexpr double kUnknownCost = std::numeric_limits<double>::quiet_NaN();
 constexpr double kSkipEdge = std::numeric_limits<double>::infinity();
@@ -244,15 +246,18 @@ void PatchDecimator::rebuild_adjacency(size_t extra) {
     live += 3;
   }
   adj_begin_.resize(nv);
-  uint64_t at = 0;
+  uint32_t at = 0;  // live < 3 * fv_.size() < kNone (checked at construction)
   for (size_t v = 0; v < nv; ++v) {
     adj_begin_[v] = at;
     at += adj_count_[v];
     adj_count_[v] = 0;
   }
   release_memory(adj_);
-  // Slack for the merged lists collapses append (see apply_cut).
-  adj_.reserve(live + live / 4 + extra);
+  // Slack for the merged lists collapses append (see apply_cut), within the 32-bit
+  // offsets of adj_begin_.
+  if (live + extra > kMaxPool)
+    throw std::length_error("PatchDecimator: corner lists exceed 32-bit offsets (patch too large)");
+  adj_.reserve(std::min<uint64_t>(live + live / 4 + extra, kMaxPool));
   adj_.resize(live);
   for (size_t f = 0; f < fv_.size(); ++f) {
     if (!falive_[f]) continue;
@@ -711,16 +716,17 @@ void PatchDecimator::prepare_round(const RoundCut& cut) { prepare(&cut.key); }
 void PatchDecimator::prepare(const EdgeKey* cut) {
   if (fv_.size() > 4096 && faces_alive_ * 2 < fv_.size()) compact_storage();
   const size_t nv = pos_.size();
-  std::vector<uint32_t> touched_list, dirty_list;
-  for (uint32_t v = 0; v < nv; ++v)
-    if (touched_[v]) touched_list.push_back(v);
+  // The touched and dirty vertices are found by their flags, not gathered in lists:
+  // in the first rounds every vertex is both, and such lists (4 B per vertex each,
+  // twice while they grow) were the largest part of the in-core peak memory.
   tbb::enumerable_thread_specific<Scratch> scratch;
   const bool charged = params_.deviation_weight > 0.0;
   // Touched vertices (the last collapses' first rings; only they can have lost a face):
   // compact their lists, update their border flags, and mark them and their second
   // ring dirty (edges to a touched vertex may have changed validity).
-  parallel_over(touched_list.size(), [&](size_t i) {
-    const uint32_t v = touched_list[i];
+  parallel_over(nv, [&](size_t vi) {
+    if (!touched_[vi]) return;
+    const uint32_t v = static_cast<uint32_t>(vi);
     compact_list(v);
     // v's faces, or a vertex of one of them, changed (a collapse touches its kept
     // vertex's whole first ring): the area of v's faces is to be summed again.
@@ -740,15 +746,16 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
           if (!is_lower_bound(load_cost(corner_cost_, k))) store_cost(corner_cost_, k, kUnknownCost);
     }
   });
-  for (uint32_t v = 0; v < nv; ++v)
-    if (dirty_[v]) dirty_list.push_back(v);
   // A stale vertex was skipped by a round with a cut >= stale_floor_ because all its
   // edges cost more; while untouched its edge costs stay, so under a cut <= that
   // floor it would be skipped again.
   const bool keep_stale = cut && has_stale_ && !(stale_floor_ < *cut);
   std::atomic<bool> deferred{false};
-  parallel_over(dirty_list.size(), [&](size_t i) {
-    const uint32_t v = dirty_list[i];
+  // The dirty vertices: every vertex with dirty_ != 0 now (the loop below leaves it
+  // non-zero, 1 or stale, at each of them, and writes no other vertex's).
+  parallel_over(nv, [&](size_t vi) {
+    if (!dirty_[vi]) return;
+    const uint32_t v = static_cast<uint32_t>(vi);
     // A stale vertex has no cached best.
     const bool stale = dirty_[v] >= kDirtyStale;
     // With a deviation charge, an edge's cost also changes when a neighbour is touched:
@@ -769,34 +776,47 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     stale_floor_ = keep_stale || !has_stale_ ? *cut : std::min(stale_floor_, *cut);
     has_stale_ = true;
   }
-  for (uint32_t v : dirty_list) {
+  update_partners();
+  // Touched vertices are dirty too.
+  parallel_over(nv, [&](size_t v) {
+    if (!dirty_[v]) return;
     dirty_[v] = dirty_[v] >= kDirtyStale ? kDirtyStale : 0;
     touched_[v] = 0;
-  }
-  update_partners(dirty_list);
+  });
 
-  tbb::enumerable_thread_specific<std::vector<Candidate>> found;
+  // Candidates are marked (kCandidate at the LME's end with the smaller global id),
+  // then gathered at their exact size in vertex order: per-thread lists grown by
+  // push_back and then concatenated held about three times the candidates' memory at
+  // the in-core peak. The gathered order does not matter (the sort below orders by
+  // key, and keys of distinct edges differ).
   parallel_over(nv, [&](size_t vi) {
     const uint32_t v = static_cast<uint32_t>(vi);
     const uint32_t w = partner_[v];
     if (w == kNone || vgid_[v] > vgid_[w]) return;
     const EdgeKey key = lme_key(v);
     if (cut && *cut < key) return;  // not collapsed this round, whatever its status
-    uint32_t shared = 0;
     for (uint32_t end : {v, w}) {
       for (uint32_t c : corners_of(end)) {
-        const uint32_t f = c / 3;
-        if (end == v && contains(fv_[f], w)) ++shared;
-        for (uint32_t u : fv_[f]) {
+        for (uint32_t u : fv_[c / 3]) {
           if (u == v || u == w || partner_[u] == kNone) continue;
           if (lme_key(u) < key) return;  // a smaller LME within one ring
         }
       }
     }
-    found.local().push_back({key, v, w, shared, (vflag_[v] & kOwned) != 0, true});
+    vflag_[v] |= kCandidate;  // only v's own flag: no other iteration writes it
   }, 256);
-  candidates_.clear();
-  for (auto& list : found) candidates_.insert(candidates_.end(), list.begin(), list.end());
+  size_t found = 0;
+  for (uint32_t v = 0; v < nv; ++v) found += (vflag_[v] & kCandidate) != 0;
+  release_memory(candidates_);
+  candidates_.reserve(found);
+  for (uint32_t v = 0; v < nv && candidates_.size() < found; ++v) {
+    if (!(vflag_[v] & kCandidate)) continue;
+    vflag_[v] &= ~kCandidate;
+    const uint32_t w = partner_[v];
+    uint32_t shared = 0;
+    for (uint32_t c : corners_of(v)) shared += contains(fv_[c / 3], w);
+    candidates_.push_back({lme_key(v), v, w, shared, (vflag_[v] & kOwned) != 0, true});
+  }
   trust_dist_.clear();
   if (untrusted_count_ > 0) {
     // Distances now, in the mesh the round's collapses start from: they decide which
@@ -809,23 +829,26 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
                      [](const Candidate& x, const Candidate& y) { return x.key < y.key; });
 }
 
-void PatchDecimator::update_partners(std::span<const uint32_t> changed) {
+void PatchDecimator::update_partners() {
   // partner_[v] = best_[v] when that edge is best at both ends, else kNone: a function
-  // of best_ at v and at best_[v]. best_ changed only at `changed` (the refreshed
-  // vertices; every other write to best_ is followed by a refresh), so only pairs with
+  // of best_ at v and at best_[v]. best_ changed only at the dirty vertices (dirty_ !=
+  // 0: the refreshed ones, and stale ones left without a best; every other write to
+  // best_ is followed by a refresh), so only pairs with
   // an end there can change: undo their old pairs (partner_ is symmetric), then pair
   // the ends of the mutual best edges among them. The result is the full recomputation's.
   auto store = [&](uint32_t v, uint32_t w) {
     std::atomic_ref<uint32_t>(partner_[v]).store(w, std::memory_order_relaxed);
   };
-  parallel_over(changed.size(), [&](size_t i) {
-    const uint32_t v = changed[i];
+  parallel_over(partner_.size(), [&](size_t i) {
+    if (!dirty_[i]) return;
+    const uint32_t v = static_cast<uint32_t>(i);
     const uint32_t old = std::atomic_ref<uint32_t>(partner_[v]).load(std::memory_order_relaxed);
     if (old != kNone) store(old, kNone);
     store(v, kNone);
   });
-  parallel_over(changed.size(), [&](size_t i) {
-    const uint32_t v = changed[i];
+  parallel_over(partner_.size(), [&](size_t i) {
+    if (!dirty_[i]) return;
+    const uint32_t v = static_cast<uint32_t>(i);
     const uint32_t w = best_[v];
     if (w != kNone && best_[w] == v) {
       store(v, w);
@@ -923,7 +946,7 @@ void PatchDecimator::collapse(const Candidate& c, uint64_t list_at) {
   const std::span<const uint32_t> own = corners_of(k), taken = corners_of(r);
   std::copy(own.begin(), own.end(), list);
   std::copy(taken.begin(), taken.end(), list + own.size());
-  adj_begin_[k] = list_at;
+  adj_begin_[k] = static_cast<uint32_t>(list_at);  // < adj_.size() <= kMaxPool
   adj_count_[k] = static_cast<uint32_t>(own.size() + taken.size());
   adj_count_[r] = 0;
   pos_[k] = p;
@@ -940,13 +963,15 @@ void PatchDecimator::collapse(const Candidate& c, uint64_t list_at) {
 }
 
 uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
-  std::vector<Candidate> chosen;
+  // The chosen candidates, kept in place at the front of candidates_ (no copy).
+  size_t chosen_count = 0;
   for (const auto& c : candidates_) {
     if (cut.key < c.key) break;
     if (cut.single_face_only && c.faces_removed != 1) continue;
-    chosen.push_back(c);
+    candidates_[chosen_count++] = c;
   }
-  candidates_.clear();
+  candidates_.resize(chosen_count);
+  const std::vector<Candidate>& chosen = candidates_;
   if (untrusted_count_ > 0) {
     // Decisions within kDecisionRadius rings of untrusted state may be wrong, and their
     // collapses change faces one ring further: all of that is untrusted from now on.
@@ -961,7 +986,8 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
   std::vector<uint64_t> list_at(chosen.size() + 1, 0);
   for (size_t i = 0; i < chosen.size(); ++i)
     list_at[i + 1] = list_at[i] + adj_count_[chosen[i].keep] + adj_count_[chosen[i].remove];
-  if (adj_.size() + list_at.back() > adj_.capacity()) rebuild_adjacency(list_at.back());
+  if (adj_.size() + list_at.back() > std::min<uint64_t>(adj_.capacity(), kMaxPool))
+    rebuild_adjacency(list_at.back());
   const uint64_t pool_end = adj_.size();
   adj_.resize(pool_end + list_at.back());
   // Candidates are >= 2 rings apart: their collapses touch disjoint faces and lists.
@@ -983,6 +1009,7 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
     for (uint32_t c1 : corners_of(k))
       for (uint32_t u : fv_[c1 / 3]) raise_flag(touched_[u]);
   }, 64);
+  candidates_.clear();
   return removed;
 }
 

@@ -243,7 +243,8 @@ class PatchDecimator {
   struct FanEdge {
     uint32_t other, corner, twin;
   };
-  enum : uint8_t { kDead = 1, kLocked = 2, kUntrusted = 4, kBorder = 8, kOwned = 16 };
+  // kCandidate: marked within prepare() only.
+  enum : uint8_t { kDead = 1, kLocked = 2, kUntrusted = 4, kBorder = 8, kOwned = 16, kCandidate = 32 };
 
   // Rebuilds the corner lists from the live faces, with room for `extra` more entries.
   void rebuild_adjacency(size_t extra);
@@ -277,8 +278,8 @@ class PatchDecimator {
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
   EdgeKey lme_key(uint32_t v) const;
-  // Brings partner_ up to date after best_ changed at the vertices `changed` only.
-  void update_partners(std::span<const uint32_t> changed);
+  // Brings partner_ up to date after best_ changed at the dirty vertices only.
+  void update_partners();
   void collapse(const Candidate& c, uint64_t list_at);
   void compact_list(uint32_t v);
   // Rings (capped at `radius` + 1) from the untrusted set, in the current mesh.
@@ -299,7 +300,7 @@ class PatchDecimator {
   // Corner lists (corner c = 3 * face + slot), one contiguous slice of adj_ per vertex.
   // A collapse appends the kept vertex's merged list at the end of the pool; dead faces
   // stay listed until prepare_round compacts the touched vertices' lists.
-  std::vector<uint64_t> adj_begin_;
+  std::vector<uint32_t> adj_begin_;  // offsets < kMaxPool (decimator.cpp)
   std::vector<uint32_t> adj_count_;
   std::vector<uint32_t> adj_;
   std::vector<uint32_t> best_;       // other endpoint of best edge, or kNone
