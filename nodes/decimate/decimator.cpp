@@ -769,7 +769,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     refresh_best(v, scratch.local(), !touched_[v] && !stale, cut);
     if (dirty_[v] == kDirtyStale && !deferred.load(std::memory_order_relaxed))
       deferred.store(true, std::memory_order_relaxed);
-  }, 64);
+  }, 1024);  // over all vertices: late rounds have few dirty ones
   if (!cut) {
     has_stale_ = false;  // every stale vertex was refreshed
   } else if (deferred.load()) {
