@@ -37,10 +37,7 @@ struct SimplifyArgs {
   std::optional<double> ratio;
   int threads = 0;
   bool in_core = false, no_weld = false, quiet = false, double_precision = false;
-  double round_fraction = nodes::SimplifyOptions{}.round_fraction;
-  double candidate_fraction = nodes::SimplifyOptions{}.candidate_fraction;
-  uint32_t epoch_rounds = nodes::SimplifyOptions{}.epoch_rounds;
-  double cut_rise = nodes::SimplifyOptions{}.cut_rise;
+  nodes::EpochOptions epochs;
   nodes::DecimateParams params;
 };
 
@@ -61,10 +58,7 @@ nodes::SimplifyOptions simplify_options(const SimplifyArgs& args) {
   options.target_faces = args.target_faces;
   options.ratio = args.ratio;
   options.weld = !args.no_weld;
-  options.round_fraction = args.round_fraction;
-  options.candidate_fraction = args.candidate_fraction;
-  options.epoch_rounds = args.epoch_rounds;
-  options.cut_rise = args.cut_rise;
+  options.epochs = args.epochs;
   options.params = args.params;
   return options;
 }
@@ -138,8 +132,8 @@ void run_simplify(const SimplifyArgs& args) {
         {"dropped_zero_area_faces", st.dropped_faces},
         {"rounds", st.rounds},
         {"epochs", st.epochs},
-        {"epoch_rounds", args.epoch_rounds},
-        {"cut_rise", args.cut_rise},
+        {"epoch_rounds", args.epochs.epoch_rounds},
+        {"cut_rise", args.epochs.cut_rise},
         {"patches", 1},
         {"budget_bytes", 0},
         {"peak_rss_bytes", peak_rss_bytes()},
@@ -192,18 +186,18 @@ void add_simplify_command(CLI::App& root, Run& run) {
   cmd->add_option("--report", args->report, "write a JSON report to this file");
   cmd->add_flag("--quiet", args->quiet, "no summary line on stderr");
   cmd->add_flag("--double", args->double_precision, "write double-precision PLY vertices");
-  cmd->add_option("--round-fraction", args->round_fraction,
+  cmd->add_option("--round-fraction", args->epochs.round_fraction,
                   "most faces a non-final round may remove, as a fraction of the current count")
       ->capture_default_str();
-  cmd->add_option("--candidate-fraction", args->candidate_fraction,
+  cmd->add_option("--candidate-fraction", args->epochs.candidate_fraction,
                   "most of the round's candidates (by faces removed) a non-final round may collapse")
       ->capture_default_str();
-  cmd->add_option("--epoch-rounds", args->epoch_rounds,
+  cmd->add_option("--epoch-rounds", args->epochs.epoch_rounds,
                   "rounds per global cut decision (an epoch; the out-of-core pipeline makes one "
                   "pass over the patches per epoch)")
       ->capture_default_str()
       ->check(CLI::Range(1u, 64u));
-  cmd->add_option("--cut-rise", args->cut_rise,
+  cmd->add_option("--cut-rise", args->epochs.cut_rise,
                   "cost bins (4 per octave) the cut rises per round of an epoch; 0: one cut per epoch")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 64.0));

@@ -23,10 +23,6 @@ uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options)
   throw std::invalid_argument("simplify: one of target_faces or ratio is required");
 }
 
-EpochOptions epoch_options(const SimplifyOptions& options) {
-  return {options.round_fraction, options.candidate_fraction, options.epoch_rounds, options.cut_rise};
-}
-
 EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
                          const EpochOptions& options,
                          const std::function<void(uint64_t, uint64_t)>& on_round) {
@@ -122,7 +118,7 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
 
   const auto t1 = std::chrono::steady_clock::now();
   const EpochRunStats run =
-      run_epochs(decimator, st.target_faces, epoch_options(options), options.on_round);
+      run_epochs(decimator, st.target_faces, options.epochs, options.on_round);
   st.rounds = run.rounds;
   st.epochs = run.epochs;
   st.seconds_rounds = seconds_since(t1);

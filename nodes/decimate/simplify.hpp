@@ -25,10 +25,7 @@ struct SimplifyOptions {
   std::optional<uint64_t> target_faces;  // one of target_faces / ratio
   std::optional<double> ratio;
   bool weld = true;
-  double round_fraction = EpochOptions{}.round_fraction;  // most faces a non-final round may remove
-  double candidate_fraction = EpochOptions{}.candidate_fraction;  // most of the candidates' faces a round may remove
-  uint32_t epoch_rounds = EpochOptions{}.epoch_rounds;  // rounds per global decision (E)
-  double cut_rise = EpochOptions{}.cut_rise;  // cost bins the cut rises per round of an epoch
+  EpochOptions epochs;  // the schedule of global decisions (cut.hpp)
   DecimateParams params;
   // Called after each round with (round, faces now); may be empty.
   std::function<void(uint64_t, uint64_t)> on_round;
@@ -59,8 +56,6 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
 
 // The target face count the options ask for.
 uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options);
-
-EpochOptions epoch_options(const SimplifyOptions& options);
 
 struct EpochRunStats {
   uint64_t rounds = 0, epochs = 0;

@@ -1118,7 +1118,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   st.input_faces = mesh.face_count;
   st.input_vertices = mesh.vertex_count;
   st.target_faces = target_face_count(mesh.face_count, options.simplify);
-  const EpochOptions epoch = epoch_options(options.simplify);
+  const EpochOptions epoch = options.simplify.epochs;
   const uint64_t capacity = job.governor().capacity();
   const uint64_t in_core_faces =
       options.in_core_faces ? options.in_core_faces : uint64_t(0.9 * double(capacity)) / kInCoreBytesPerFace;
