@@ -5,6 +5,8 @@
 #
 #   bench/budget_sweep.sh [FACES] [BUILD_DIR] [WORK_DIR] [BUDGETS...]
 #   bench/budget_sweep.sh 50M build /tmp/qemflow-sweep 256M 512M 1G 2G 4G 8G   (the defaults)
+#   CSV=bench/results/budget_sweep_5M.csv bench/budget_sweep.sh 5M ...   write the CSV (and the
+#   PNG beside it, same name) elsewhere
 set -euo pipefail
 FACES=${1:-50M}
 BUILD=${2:-build}
@@ -14,7 +16,8 @@ BUDGETS=("$@")
 [ ${#BUDGETS[@]} -eq 0 ] && BUDGETS=(256M 512M 1G 2G 4G 8G)
 HERE=$(cd "$(dirname "$0")" && pwd)
 QEMFLOW="$BUILD/apps/qemflow"
-CSV="$HERE/results/budget_sweep.csv"
+CSV=${CSV:-$HERE/results/budget_sweep.csv}
+PNG="${CSV%.csv}.png"
 mkdir -p "$WORK" "$HERE/results"
 trap 'rm -rf "$WORK"' EXIT
 
@@ -43,4 +46,4 @@ PY
   rm -f "$WORK/out.ply"
 done
 cat "$CSV"
-/usr/bin/python3 "$HERE/budget_sweep.py" "$CSV" "$HERE/results/budget_sweep.png"
+/usr/bin/python3 "$HERE/budget_sweep.py" "$CSV" "$PNG"
