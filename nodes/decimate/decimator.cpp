@@ -139,6 +139,7 @@ struct PatchDecimator::Scratch {
   std::vector<FanEdge> fan;
   std::vector<Triangle3> moved;  // deviation(): the collapsed fan
   std::vector<double> areas;
+  uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
 };
 
 PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : params_(params) {
@@ -147,7 +148,8 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   if (in.vertex_gids.size() != nv || in.face_gids.size() != in.faces.size() ||
       !optional_size_ok(in.incomplete.size(), nv) || !optional_size_ok(in.owned_vertex.size(), nv) ||
       !optional_size_ok(in.locked.size(), nv) || !optional_size_ok(in.quadrics.size(), nv) ||
-      !optional_size_ok(in.owned_face.size(), in.faces.size()))
+      !optional_size_ok(in.owned_face.size(), in.faces.size()) || !optional_size_ok(in.best_gids.size(), nv) ||
+      in.best_costs.size() != in.best_gids.size())
     throw std::invalid_argument("PatchDecimator: array sizes disagree");
   if (nv >= kNone || in.faces.size() >= kNone / 3)
     throw std::invalid_argument("PatchDecimator: patch too large for 32-bit local ids");
@@ -233,6 +235,50 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   touched_.assign(nv, 1);
   locked_count_ = 0;
   for (uint8_t f : vflag_) locked_count_ += (f & kLocked) ? 1 : 0;
+  if (!in.best_gids.empty()) restore_bests(in.best_gids, in.best_costs);
+  release_memory(in.best_gids);
+  release_memory(in.best_costs);
+}
+
+void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std::vector<double>& costs) {
+  // A carried best is the global one (the exporting patch computed it where its 2-ring
+  // was trusted); here a refresh computes the same only where v's 2-ring is the global
+  // one too: no initially untrusted vertex within kBestRadius rings.
+  std::vector<uint8_t> dist;
+  if (untrusted_count_ > 0) untrusted_distances(kBestRadius, dist);
+  std::vector<uint8_t> restored(pos_.size(), 0);
+  tbb::enumerable_thread_specific<Scratch> scratch;
+  parallel_over(pos_.size(), [&](size_t vi) {
+    const uint32_t v = static_cast<uint32_t>(vi);
+    const uint64_t gid = gids[v];
+    if (gid == kBestUnknown || (!dist.empty() && dist[v] <= kBestRadius)) return;
+    uint32_t best = kNone;
+    if (gid != kBestNone) {
+      if (vflag_[v] & kLocked) return;  // refresh_best gives a locked vertex none
+      for (uint32_t c : corners_of(v))
+        for (uint32_t u : fv_[c / 3])
+          if (u != v && vgid_[u] == gid) best = u;
+      if (best == kNone) return;  // not a neighbour: not the state the value is for
+    }
+    // As a refresh leaves it (no best: cost 0); untouched and clean, so the first round
+    // skips v unless a touched neighbour makes it near-touched, whose refresh keeps an
+    // exact best unless a smaller valid edge appears (it cannot: none changed). The
+    // border flag is the touched pass's other output.
+    best_[v] = best;
+    best_cost_[v] = best == kNone ? 0.0 : costs[v];
+    dirty_[v] = 0;
+    touched_[v] = 0;
+    update_border(v, scratch.local());
+    restored[v] = 1;
+  });
+  // partner_ for pairs of restored vertices; the first prepare's update_partners pairs
+  // the refreshed ones (it visits the dirty vertices only).
+  for (uint32_t v = 0; v < pos_.size(); ++v) {
+    if (!restored[v]) continue;
+    ++restored_bests_;
+    const uint32_t w = best_[v];
+    if (w != kNone && restored[w] && best_[w] == v) partner_[v] = w;
+  }
 }
 
 void PatchDecimator::rebuild_adjacency(size_t extra) {
@@ -766,7 +812,9 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
         (keep_stale || cut->cost < best_cost_[v]))
       return;
     dirty_[v] = 1;
-    refresh_best(v, scratch.local(), !touched_[v] && !stale, cut);
+    Scratch& s = scratch.local();
+    ++s.refreshed;
+    refresh_best(v, s, !touched_[v] && !stale, cut);
     if (dirty_[v] == kDirtyStale && !deferred.load(std::memory_order_relaxed))
       deferred.store(true, std::memory_order_relaxed);
   }, 1024);  // over all vertices: late rounds have few dirty ones
@@ -776,6 +824,8 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     stale_floor_ = keep_stale || !has_stale_ ? *cut : std::min(stale_floor_, *cut);
     has_stale_ = true;
   }
+  for (const Scratch& s : scratch) refreshes_ += s.refreshed;
+  bests_exact_ = !cut;
   update_partners();
   // Touched vertices are dirty too.
   parallel_over(nv, [&](size_t v) {
@@ -864,6 +914,7 @@ void PatchDecimator::set_params(const DecimateParams& params) {
   std::fill(dirty_.begin(), dirty_.end(), uint8_t{1});
   std::fill(touched_.begin(), touched_.end(), uint8_t{1});
   candidates_.clear();
+  bests_exact_ = false;
 }
 
 RoundSummary PatchDecimator::summarize() const {
@@ -1010,6 +1061,7 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
       for (uint32_t u : fv_[c1 / 3]) raise_flag(touched_[u]);
   }, 64);
   candidates_.clear();
+  bests_exact_ = false;
   return removed;
 }
 
@@ -1048,6 +1100,14 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     out.degrees.push_back(degree);
     out.trusted.push_back((vflag_[v] & kUntrusted) ? 0 : 1);
     out.untrusted_vertices += (vflag_[v] & kUntrusted) ? 1 : 0;
+    if (bests_exact_) {
+      // trust_dist_ is the last prepare's (rings to the untrusted set, capped above
+      // kTrustSpread >= kBestRadius; empty: nothing untrusted).
+      const bool exact = trust_dist_.empty() || trust_dist_[v] > kBestRadius;
+      const uint32_t w = best_[v];
+      out.best_gids.push_back(!exact ? kBestUnknown : w == kNone ? kBestNone : vgid_[w]);
+      out.best_costs.push_back(exact && w != kNone ? best_cost_[v] : 0.0);
+    }
   }
   // Faces with a repeated vertex count once for each distinct vertex.
   for (const auto& t : passthrough_)

@@ -84,6 +84,12 @@ inline constexpr int kTrustSpread = kDecisionRadius + 1;
 // Rings around an incomplete vertex whose locally computed initial quadric is not
 // trusted (the lead's conservative rule; a vertex's quadric reads only its own faces).
 inline constexpr int kInitialQuadricRadius = 2;
+// Rings best(v) reads (the validity and cost of every edge at v): a best edge computed
+// where every vertex within this many rings is trusted is the global one.
+inline constexpr int kBestRadius = 2;
+// PatchInput / PatchOutput::best_gids values besides a neighbour's global id.
+inline constexpr uint64_t kBestUnknown = ~uint64_t{0};    // not carried: refresh
+inline constexpr uint64_t kBestNone = ~uint64_t{0} - 1;   // exact: no valid edge
 
 struct DecimateParams {
   // A collapse is invalid when a face normal turns so that cos(angle) < this.
@@ -120,6 +126,15 @@ struct PatchInput {
   std::vector<std::array<uint32_t, 3>> faces;  // local vertex refs
   std::vector<uint64_t> face_gids;
   std::vector<uint8_t> owned_face;    // per face; empty: all owned
+  // Per vertex; empty: none carried. A vertex's best edge as the previous epoch's
+  // summary found it (PatchOutput::best_gids: the other endpoint's global id, kBestNone
+  // or kBestUnknown) and its cost. Valid only for the same mesh state and params (the
+  // caller's duty: nothing may collapse, and the guards may not relax, in between).
+  // Restored where it is what a refresh here would compute, bit for bit: at vertices
+  // more than kBestRadius rings from every initially untrusted one (a vertex near the
+  // halo's edge sees a different 2-ring); there the first round skips the refresh.
+  std::vector<uint64_t> best_gids;
+  std::vector<double> best_costs;
 };
 
 // The total order of edges: (cost, tie, smaller global id, larger global id), where
@@ -193,6 +208,12 @@ struct PatchOutput {
   std::vector<uint8_t> locked;
   std::vector<uint32_t> degrees;         // alive faces around the vertex in this patch
   std::vector<uint8_t> trusted;          // the vertex's state is the global one
+  // The vertex's best edge (PatchInput::best_gids), filled only when extract() follows a
+  // plain prepare_round() (every best exact, nothing collapsed since): the other
+  // endpoint's global id or kBestNone where every vertex within kBestRadius rings is
+  // trusted (the global best), kBestUnknown elsewhere. Empty otherwise.
+  std::vector<uint64_t> best_gids;
+  std::vector<double> best_costs;
   std::vector<std::array<uint32_t, 3>> faces;  // sorted by global face id
   std::vector<uint64_t> face_gids;
   uint64_t untrusted_vertices = 0;       // output vertices whose state may be wrong
@@ -232,6 +253,11 @@ class PatchDecimator {
   uint64_t vertex_gid(uint32_t v) const { return vgid_[v]; }
   uint64_t locked_vertices() const { return locked_count_; }
   uint64_t dropped_faces() const { return dropped_faces_; }
+  // Vertices whose best edge the constructor restored from PatchInput::best_gids, and
+  // best-edge refreshes run so far (prepare's calls of refresh_best): counters for
+  // reports and tests.
+  uint64_t restored_bests() const { return restored_bests_; }
+  uint64_t refreshes() const { return refreshes_; }
   // The owned faces (all faces with owned_only = false, for diagnostics) and their
   // vertices.
   PatchOutput extract(bool owned_only = true) const;
@@ -252,6 +278,7 @@ class PatchDecimator {
     return {adj_.data() + adj_begin_[v], adj_count_[v]};
   }
   void lock_nonmanifold_vertices();
+  void restore_bests(const std::vector<uint64_t>& gids, const std::vector<double>& costs);
   void compute_quadrics();
   void compact_storage();
   void prepare(const EdgeKey* cut);
@@ -324,6 +351,9 @@ class PatchDecimator {
   uint64_t locked_count_ = 0;
   uint64_t dropped_faces_ = 0;
   uint64_t untrusted_count_ = 0;
+  uint64_t restored_bests_ = 0, refreshes_ = 0;
+  // The last step was a plain prepare_round: every best_ is exact (extract carries them).
+  bool bests_exact_ = false;
   std::vector<uint8_t> fowned_;      // per face, empty when all owned
   std::vector<uint8_t> passthrough_owned_;
   std::vector<uint8_t> trust_dist_;  // round scratch: rings to the untrusted set

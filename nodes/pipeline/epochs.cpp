@@ -47,8 +47,12 @@ struct VertexRecord {
   uint8_t locked = 0;
   uint8_t has_quadric = 0;
   uint8_t unused[2] = {0, 0};
+  // The vertex's best edge at the exporting pass's summary (PatchOutput::best_gids):
+  // the next pass's patches restore it instead of refreshing it in their first round.
+  uint64_t best_gid = kBestUnknown;
+  double best_cost = 0.0;
 };
-static_assert(sizeof(VertexRecord) == 120);
+static_assert(sizeof(VertexRecord) == 136);
 
 struct Box {
   Point min{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
@@ -331,6 +335,10 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           r.degree = out.degrees[v];
           r.locked = out.locked[v];
           r.has_quadric = 1;
+          if (!out.best_gids.empty()) {
+            r.best_gid = out.best_gids[v];
+            r.best_cost = out.best_costs[v];
+          }
           vertices[k] = r;
           meta.box.add(r.position);
         }
@@ -675,9 +683,18 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
     tbb::parallel_sort(g.vertices.begin(), g.vertices.end(),
                        [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
   });
-  g.vertices.erase(std::unique(g.vertices.begin(), g.vertices.end(),
-                               [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
-                   g.vertices.end());
+  // A gid's records are equal copies but for the carried best, which one exporting
+  // patch may know and another not: keep a known one (two known ones are equal), so
+  // the result does not depend on the sort's order among equal keys.
+  size_t kept = 0;
+  for (size_t i = 0; i < g.vertices.size(); ++i) {
+    if (kept > 0 && g.vertices[kept - 1].gid == g.vertices[i].gid) {
+      if (g.vertices[kept - 1].best_gid == kBestUnknown) g.vertices[kept - 1] = g.vertices[i];
+      continue;
+    }
+    g.vertices[kept++] = g.vertices[i];
+  }
+  g.vertices.resize(kept);
   return g;
 }
 
@@ -690,7 +707,8 @@ struct BuiltPatch {
 // gathered arrays are in read order with repeated vertex records: the first record of
 // a gid stands for it, and only the selection is put in gid / fid order (sorting
 // 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
-BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
+// `carry_bests`: the records' carried best edges are valid for the pass (PatchInput::best_gids).
+BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests) {
   BuiltPatch out;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const VertexRecord* vb = g.vertices.data();
@@ -765,6 +783,7 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
   PatchInput& in = out.input;
   std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
   const bool given_quadrics = nv > 0 && vb[0].has_quadric;
+  const bool carried = given_quadrics && carry_bests;
   // Exact sizes (no growth spikes).
   in.vertex_gids.reserve(kept_v);
   in.positions.reserve(kept_v);
@@ -776,6 +795,10 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
     in.incomplete.reserve(kept_v);
     in.owned_vertex.reserve(kept_v);
   }
+  if (carried) {
+    in.best_gids.reserve(kept_v);
+    in.best_costs.reserve(kept_v);
+  }
   for (const auto& [gid, v] : vorder) {
     new_index[v] = uint32_t(in.vertex_gids.size());
     in.vertex_gids.push_back(gid);
@@ -783,6 +806,10 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
     if (given_quadrics) {
       in.quadrics.push_back(vb[v].quadric);
       in.locked.push_back(vb[v].locked);
+    }
+    if (carried) {
+      in.best_gids.push_back(vb[v].best_gid);
+      in.best_costs.push_back(vb[v].best_cost);
     }
     if (!whole) {
       uint32_t inside = 0;
@@ -824,7 +851,7 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole) {
 // nothing incomplete). Unlike build_patch it needs no fans or BFS, and it releases each
 // gathered array as soon as its part of the input exists, so the finish peaks in the
 // decimator (kInCoreBytesPerFace) rather than here. `g` is consumed.
-PatchInput build_whole_patch(Gathered&& g) {
+PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   PatchInput in;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const bool given_quadrics = nv > 0 && g.vertices[0].has_quadric;
@@ -858,17 +885,27 @@ PatchInput build_whole_patch(Gathered&& g) {
     for (size_t v = 0; v < nv; ++v) in.locked[v] = g.vertices[v].locked;
     in.quadrics.resize(nv);
     for (size_t v = 0; v < nv; ++v) in.quadrics[v] = g.vertices[v].quadric;
+    if (carry_bests) {
+      in.best_gids.resize(nv);
+      in.best_costs.resize(nv);
+      for (size_t v = 0; v < nv; ++v) {
+        in.best_gids[v] = g.vertices[v].best_gid;
+        in.best_costs[v] = g.vertices[v].best_cost;
+      }
+    }
   }
   release_memory(g.vertices);
   return in;
 }
 
-void run_patch_plan(PatchDecimator& d, const PatchPlan& plan, PhaseClock& clock) {
+// `first_refreshes`: the best-edge refreshes of the first round's prepare (OocStats).
+void run_patch_plan(PatchDecimator& d, const PatchPlan& plan, PhaseClock& clock, uint64_t& first_refreshes) {
   if (plan.kind == PatchPlan::Kind::summary_only) return;
   // The cut is known, so every round may skip the vertices whose edges all lie above
   // it (the summary after the epoch refreshes them with a plain prepare_round).
   for (size_t round = 0; round < plan.cuts.size(); ++round) {
     d.prepare_round(plan.cuts[round]);
+    if (round == 0) first_refreshes += d.refreshes();
     d.apply_cut(plan.cuts[round]);
     if (round == 0) clock.charge(kFirstRound);
   }
@@ -907,6 +944,9 @@ struct Runner {
     const auto it = redo_rings.find(pass_rings);
     return pass_rings + (it == redo_rings.end() ? 0 : it->second);
   }
+  // The state's carried best edges are valid for this pass: the pass that wrote it ran
+  // with the same params (false after the guards relax, until a pass rewrites it).
+  bool carry_bests = false;
   std::vector<Box> owner_box;
   std::vector<double> owner_edge;  // mean edge length of the owned faces
   std::vector<uint64_t> owner_faces;
@@ -974,7 +1014,7 @@ struct Runner {
       lease.shrink_to(g.faces.size() * kPatchBytesPerFace);
       const uint64_t owned_faces = g.owned_faces;
       BuiltPatch built;
-      job.arena().execute([&] { built = build_patch(g, p, rings, false); });
+      job.arena().execute([&] { built = build_patch(g, p, rings, false, carry_bests); });
       g = {};
       clock.charge(kBuild);
       if (built.margin_too_small) {
@@ -991,10 +1031,13 @@ struct Runner {
       std::optional<PatchOutput> out;
       job.arena().execute([&] {
         PatchDecimator d(std::move(built.input), params);
+        stats.carried_bests += d.restored_bests();
         clock.charge(kSetup);
-        run_patch_plan(d, plan, clock);
+        run_patch_plan(d, plan, clock, stats.first_round_refreshes);
         clock.charge(kRounds);
         d.prepare_round();
+        // Without rounds the summary's prepare is the first.
+        if (plan.cuts.empty()) stats.first_round_refreshes += d.refreshes();
         summary = d.summarize();
         if (candidates) owned = trim_for_exact_cut(d.owned_candidates(), needed);
         clock.charge(kSummary);
@@ -1187,6 +1230,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
         if (e.kind == EpochPlan::Kind::relax) {
           params = relaxed_params(params);
           relaxed = true;
+          runner.carry_bests = false;  // found under the strict guards
         } else if (e.kind == EpochPlan::Kind::bin_cut) {
           plan = {PatchPlan::Kind::bin_cut, e.cuts};
         } else {
@@ -1207,6 +1251,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
       st.rounds += plan.cuts.size();
       ++st.ooc_epochs;
       first = false;
+      runner.carry_bests = true;  // the summary that exported them ran with `params`
       replace_state(std::move(next));
       engine::trim_allocator();
     }
@@ -1223,12 +1268,13 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   PatchInput whole;
   {
     Gathered g = load_candidates(job, scratch, plan_gather(*state, nullptr, 0.0), nullptr);
-    job.arena().execute([&] { whole = build_whole_patch(std::move(g)); });
+    job.arena().execute([&] { whole = build_whole_patch(std::move(g), runner.carry_bests); });
   }
   replace_state(new_state());
   job.arena().execute([&] {
     PatchDecimator d(std::move(whole), params);
-    if (first || true) {
+    st.in_core_carried_bests = d.restored_bests();
+    {
       const EpochRunStats run = run_epochs(d, st.target_faces, epoch);
       st.rounds += run.rounds;
       st.epochs += run.epochs;

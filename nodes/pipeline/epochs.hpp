@@ -16,7 +16,14 @@
 //   writer options as the in-core command, so the files are byte-identical.
 // - The mesh state between epochs lives in scratch as chunks: one zstd frame per chunk
 //   holding face records {fid, 3 vertex gids, owner} and the records of their vertices
-//   {gid, position, quadric, degree, lock}; every chunk holds faces of one owner.
+//   {gid, position, quadric, degree, lock, best edge}; every chunk holds faces of one owner.
+// - Best edges carried between passes: a pass's summary (a plain prepare_round) leaves
+//   every vertex's best edge exact; the export writes it (other endpoint's gid and cost)
+//   where the patch computed it with a trusted 2-ring, and the next pass's patches (and
+//   the in-core finish) restore it where their own 2-ring is trusted, so their first
+//   round refreshes only the other vertices (decimator.hpp, PatchInput::best_gids).
+//   Nothing collapses between a summary and the next pass; when the guards relax in
+//   between, nothing is carried (the bests were found under the old params).
 // - A patch's halo: faces within `rings` rings of its owned faces, found by BFS over
 //   the faces with a vertex near the owned faces (their chunks' boxes grown by a
 //   margin; chunks that meet none are not read); a vertex whose fan is
@@ -77,6 +84,11 @@ struct OocStats {
   // (owned + every face the box filter kept), faces of the built patches (owned + halo)
   // and owned faces; their ratios say what the halo and the gather cost.
   uint64_t gathered_faces_total = 0, patch_faces_total = 0, owned_faces_total = 0;
+  // Best edges carried from the previous pass's summary (VertexRecord): vertices whose
+  // best the patches restored (redos included) and the in-core finish restored, and the
+  // best-edge refreshes the patches' first prepare still ran (the first round's, or the
+  // summary's in a pass without rounds).
+  uint64_t carried_bests = 0, in_core_carried_bests = 0, first_round_refreshes = 0;
   // Where the out-of-core patch work goes (redos included): wall and process CPU seconds
   // per phase of run_part, in this order: gather (plan, read, filter), build (BFS halo,
   // PatchInput), setup (PatchDecimator's constructor), first_round (the epoch's first
@@ -102,7 +114,8 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 // Bytes per gathered face of a patch while it is gathered and decimated, and per face of
 // the in-core finish; the budget rules use them. A patch peaks while the gathered state
 // (face record 40 B + vertex records ~60 B per face), the BFS arrays and the built
-// PatchInput (~80 B) are alive together: measured on 1M faces at 96M (VmHWM reset per
+// PatchInput (~80 B) are alive together (+16 B per vertex record and per PatchInput
+// vertex since the records carry the best edge: +16 B per face, about 8 B of each): measured on 1M faces at 96M (VmHWM reset per
 // phase, above the RSS before the gather), the gather peaks at 132-237 B and the build
 // at 188-274 B per gathered face; the decimator phase holds ~300 B per patch face plus
 // ~20 MB that does not scale with the patch (heap arenas), which the baseline's margin
@@ -111,7 +124,7 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 // so it peaks in the decimator itself: measured 131 B/face (baseline excluded) at 1.76M
 // faces (`qemflow simplify b2m.ply --clusters 2 --in-core-faces 1900000`, VmRSS sampled);
 // 170 leaves room for small meshes, where fixed buffers weigh more.
-inline constexpr uint64_t kPatchBytesPerFace = 260;
+inline constexpr uint64_t kPatchBytesPerFace = 276;
 inline constexpr uint64_t kInCoreBytesPerFace = 170;
 
 // The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured

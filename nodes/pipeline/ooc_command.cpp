@@ -87,6 +87,9 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["gathered_faces_total"] = st.gathered_faces_total;
     report["patch_faces_total"] = st.patch_faces_total;
     report["owned_faces_total"] = st.owned_faces_total;
+    report["carried_bests"] = st.carried_bests;
+    report["in_core_carried_bests"] = st.in_core_carried_bests;
+    report["first_round_refreshes"] = st.first_round_refreshes;
     for (size_t i = 0; i < OocStats::kPhases; ++i)
       report["patch_phases"][OocStats::kPhaseNames[i]] = {{"seconds", st.phase_wall[i]}, {"cpu_seconds", st.phase_cpu[i]}};
     engine::report_scratch(report, scratch);

@@ -41,6 +41,8 @@ struct GlobalMesh {
     Vec3 position;
     Quadric quadric;
     uint8_t locked = 0;
+    uint64_t best_gid = kBestUnknown;  // carried best edge (Simulation::carry)
+    double best_cost = 0.0;
   };
   std::map<uint64_t, Vertex> vertices;
 };
@@ -104,6 +106,11 @@ struct Simulation {
   // checked directly, not only through the owned outputs.
   PatchDecimator* reference = nullptr;
   uint64_t trusted_checked = 0;
+  // Carry each vertex's best edge from an epoch's end (a plain prepare_round before the
+  // exchange) to the next epoch's patches, as the pipeline does; cleared when the
+  // guards relax. Counted: bests restored, and refreshes of the epochs' first prepare.
+  bool carry = false;
+  uint64_t restored = 0, first_refreshes = 0;
 
   void run_plan(std::span<PatchDecimator* const> ds, const EpochPlan& plan,
                 const std::optional<RoundCut>& exact) const {
@@ -178,6 +185,10 @@ struct Simulation {
         in.quadrics.push_back(state.quadric);
         in.locked.push_back(state.locked);
       }
+      if (carry && !first_epoch) {
+        in.best_gids.push_back(state.best_gid);
+        in.best_costs.push_back(state.best_cost);
+      }
       const auto& vf = fan[v];
       const size_t inside = size_t(std::count_if(vf.begin(), vf.end(),
                                                  [&](uint64_t f) { return faces.count(f) != 0; }));
@@ -201,7 +212,9 @@ struct Simulation {
     for (int side = 0; side < 2; ++side) patches.emplace_back(patch(g, side, rings, first_epoch), params);
     RoundSummary total;
     for (auto& p : patches) {
+      restored += p.restored_bests();
       p.prepare_round();
+      first_refreshes += p.refreshes();
       total.add(p.summarize());
     }
     if (total.inexact_candidates != 0) return false;
@@ -221,6 +234,8 @@ struct Simulation {
       if (reference) reference->set_params(relaxed_params(params));
       params = relaxed_params(params);
       relaxed = true;
+      // The carried bests were found under the strict guards.
+      for (auto& [gid, v] : g.vertices) v.best_gid = kBestUnknown;
       return true;
     }
     std::optional<RoundCut> cut;
@@ -239,8 +254,10 @@ struct Simulation {
     // Exchange: the next state is the union of the owned outputs.
     GlobalMesh next;
     for (auto& p : patches) {
+      if (carry) p.prepare_round();  // the epoch's summary: every best exact
       const PatchOutput out = p.extract();
       if (out.untrusted_vertices != 0) return false;
+      EXPECT_EQ(out.best_gids.empty(), !carry);
       for (size_t i = 0; i < out.faces.size(); ++i) {
         const std::array<uint64_t, 3> t = {out.vertex_gids[out.faces[i][0]],
                                            out.vertex_gids[out.faces[i][1]],
@@ -248,12 +265,24 @@ struct Simulation {
         EXPECT_TRUE(next.faces.emplace(out.face_gids[i], t).second) << "face owned twice";
       }
       for (size_t i = 0; i < out.positions.size(); ++i) {
-        const GlobalMesh::Vertex v{out.positions[i], out.quadrics[i], out.locked[i]};
+        GlobalMesh::Vertex v{out.positions[i], out.quadrics[i], out.locked[i]};
+        if (carry) {
+          v.best_gid = out.best_gids[i];
+          v.best_cost = out.best_costs[i];
+        }
         const auto [it, inserted] = next.vertices.emplace(out.vertex_gids[i], v);
         if (!inserted) {  // shared by both patches' owned faces: the same state
           EXPECT_TRUE(same_bits(it->second.position, v.position));
           EXPECT_TRUE(same_bits(it->second.quadric, v.quadric));
           EXPECT_EQ(it->second.locked, v.locked);
+          // Two known bests are the global one; a patch may not know it (untrusted 2-ring).
+          if (it->second.best_gid == kBestUnknown) {
+            it->second.best_gid = v.best_gid;
+            it->second.best_cost = v.best_cost;
+          } else if (v.best_gid != kBestUnknown) {
+            EXPECT_EQ(it->second.best_gid, v.best_gid);
+            EXPECT_EQ(std::bit_cast<uint64_t>(it->second.best_cost), std::bit_cast<uint64_t>(v.best_cost));
+          }
         }
       }
       // Degrees of trusted vertices are the global ones (checked below).
@@ -441,6 +470,92 @@ TEST(DecimateEpochs, TwoPatchSimulationEqualsInCoreBitForBit) {
                   static_cast<unsigned long long>(sim.epochs), sim.max_halo_used, sim.halo_growths);
     }
   }
+}
+
+TEST(DecimateEpochs, TwoPatchSimulationCarryingBestEdgesEqualsInCoreAndRefreshesLess) {
+  // As above, with each vertex's best edge carried from one epoch's summary to the next
+  // epoch's patches: a carried best that differed from what a refresh computes (or one
+  // carried across the guards' relaxation, or restored near a patch's halo edge) would
+  // change the LMEs and the result.
+  const Case c = cases()[1];  // the grid: the quicker case
+  EpochOptions options;
+  options.epoch_rounds = 2;
+  uint64_t refreshes[2] = {0, 0};
+  for (const bool carry : {false, true}) {
+    SCOPED_TRACE(carry ? "carrying" : "not carrying");
+    Simulation sim{c.mesh, c.target, options, int(kInitialQuadricRadius + kTrustSpread * 2 + 3)};
+    sim.split = c.split;
+    sim.carry = carry;
+    PatchDecimator lockstep(whole_patch(c.mesh), {});
+    sim.reference = &lockstep;
+    expect_same_mesh(sim.run(), in_core_result(c.mesh, c.target, options));
+    EXPECT_GT(sim.epochs, 5u);
+    if (carry) {
+      EXPECT_GT(sim.restored, c.mesh.points.size());
+    } else {
+      EXPECT_EQ(sim.restored, 0u);
+    }
+    refreshes[carry] = sim.first_refreshes;
+    std::printf("carry %d: %llu bests restored, %llu refreshes in the epochs' first prepare\n", int(carry),
+                static_cast<unsigned long long>(sim.restored), static_cast<unsigned long long>(sim.first_refreshes));
+  }
+  EXPECT_LT(2 * refreshes[1], refreshes[0]);
+}
+
+TEST(DecimateEpochs, RestoredBestsContinueExactlyLikeTheDecimatorTheyCameFrom) {
+  // In core (nothing untrusted): stop halfway, take a plain prepare_round's bests with
+  // the state, and rebuild. With the bests every vertex is restored and the first
+  // prepare refreshes none; with or without them, and the original decimator going on,
+  // the result is the same bit for bit.
+  const Mesh m = qemflow::testing::icosphere(5, 0.02, 3);
+  EpochOptions options;
+  PatchDecimator original(whole_patch(m), {});
+  run_epochs(original, m.triangles.size() / 3, options);
+  original.prepare_round();
+  const PatchOutput half = original.extract(false);
+  ASSERT_EQ(half.best_gids.size(), half.vertex_gids.size());
+  EXPECT_EQ(std::count(half.best_gids.begin(), half.best_gids.end(), kBestUnknown), 0);
+  enum class Bests { carried, none_carried, wrong };
+  auto rebuilt = [&](Bests bests) {
+    PatchInput in;
+    in.positions = half.positions;
+    in.vertex_gids = half.vertex_gids;
+    in.quadrics = half.quadrics;
+    in.locked = half.locked;
+    in.faces = half.faces;
+    in.face_gids = half.face_gids;
+    if (bests == Bests::carried) {
+      in.best_gids = half.best_gids;
+      in.best_costs = half.best_costs;
+    } else if (bests == Bests::wrong) {  // "no valid edge" everywhere
+      in.best_gids.assign(half.vertex_gids.size(), kBestNone);
+      in.best_costs.assign(half.vertex_gids.size(), 0.0);
+    }
+    return PatchDecimator(std::move(in), original.params());
+  };
+  PatchDecimator restored = rebuilt(Bests::carried), fresh = rebuilt(Bests::none_carried);
+  EXPECT_EQ(restored.restored_bests(), half.vertex_gids.size());
+  EXPECT_EQ(fresh.restored_bests(), 0u);
+  restored.prepare_round();
+  fresh.prepare_round();
+  EXPECT_EQ(restored.refreshes(), 0u);
+  EXPECT_EQ(fresh.refreshes(), half.vertex_gids.size());
+  EXPECT_EQ(restored.summarize().faces_per_bin, fresh.summarize().faces_per_bin);
+  const uint64_t target = m.triangles.size() / 20;
+  for (PatchDecimator* d : {&original, &restored, &fresh}) run_epochs(*d, target, options);
+  const PatchOutput a = original.extract(), b = restored.extract(), c = fresh.extract();
+  ASSERT_EQ(a.face_gids, b.face_gids);
+  ASSERT_EQ(a.face_gids, c.face_gids);
+  ASSERT_EQ(a.vertex_gids, b.vertex_gids);
+  ASSERT_EQ(a.vertex_gids, c.vertex_gids);
+  for (size_t i = 0; i < a.positions.size(); ++i) {
+    EXPECT_TRUE(same_bits(a.positions[i], b.positions[i])) << a.vertex_gids[i];
+    EXPECT_TRUE(same_bits(a.positions[i], c.positions[i])) << a.vertex_gids[i];
+  }
+  // Wrong carried bests are trusted as given (the caller's duty): not the same run.
+  PatchDecimator broken = rebuilt(Bests::wrong);
+  run_epochs(broken, target, options);
+  EXPECT_NE(broken.extract().face_gids, a.face_gids);
 }
 
 TEST(DecimateEpochs, TrustTrackingReportsATooSmallHalo) {
