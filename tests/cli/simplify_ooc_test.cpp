@@ -80,6 +80,29 @@ TEST(SimplifyOoc, GeneratedMeshAllTheWayOutOfCoreEqualsInCore) {
   expect_partition_invariant(mesh, "--target-faces 301", {2, 4, 8, 16}, 1);
 }
 
+// Every pass after the first restores the best edges the previous pass's summary
+// exported (nodes/pipeline/epochs.hpp), all the way out of core (the guards' relaxation
+// and the exact-cut end game included) and in the finish: the output is still the
+// in-core one, and the patches' first rounds refresh far fewer vertices than they
+// restore.
+TEST(SimplifyOoc, CarriedBestEdgesKeepTheOutputAndSpareFirstRoundRefreshes) {
+  TempDir dir;
+  const auto mesh = generate(dir, "--faces 12000");
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() +
+         " --target-faces 301 --in-core --quiet");
+  auto r = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 1");
+  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply")) << "output differs from --in-core";
+  EXPECT_GT(r["out_of_core_epochs"].get<uint64_t>(), 10u);
+  const uint64_t carried = r["carried_bests"].get<uint64_t>();
+  EXPECT_GT(carried, 10 * r["first_round_refreshes"].get<uint64_t>());
+  EXPECT_GT(carried, r["owned_faces_total"].get<uint64_t>() / 2);  // about one vertex per 2 faces
+  EXPECT_GT(r["in_core_carried_bests"].get<uint64_t>(), 0u);
+  // A finish after two passes restores most of its vertices too.
+  r = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 11000");
+  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply")) << "output differs from --in-core";
+  EXPECT_GT(r["in_core_carried_bests"].get<uint64_t>(), r["output_vertices"].get<uint64_t>());
+}
+
 TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 12000");
