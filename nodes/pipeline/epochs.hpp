@@ -113,19 +113,22 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 
 // Bytes per gathered face of a patch while it is gathered and decimated, and per face of
 // the in-core finish; the budget rules use them. A patch peaks while the gathered state
-// (face record 40 B + vertex records ~60 B per face), the BFS arrays and the built
-// PatchInput (~80 B) are alive together (+16 B per vertex record and per PatchInput
-// vertex since the records carry the best edge: +16 B per face, about 8 B of each): measured on 1M faces at 96M (VmHWM reset per
-// phase, above the RSS before the gather), the gather peaks at 132-237 B and the build
-// at 188-274 B per gathered face; the decimator phase holds ~300 B per patch face plus
-// ~20 MB that does not scale with the patch (heap arenas), which the baseline's margin
-// covers. The finish builds its input without the BFS and
-// frees each gathered array as soon as its part of the input exists (build_whole_patch),
-// so it peaks in the decimator itself: measured 131 B/face (baseline excluded) at 1.76M
-// faces (`qemflow simplify b2m.ply --clusters 2 --in-core-faces 1900000`, VmRSS sampled);
-// 170 leaves room for small meshes, where fixed buffers weigh more.
+// (face record 40 B + vertex records ~68 B per face), the BFS arrays and the built
+// PatchInput (~88 B) are alive together: measured on 1M faces at 96M (VmHWM reset per
+// phase, above the RSS before the gather, with 120-byte records and no carried bests),
+// the gather peaks at 132-237 B and the build at 188-274 B per gathered face; the
+// decimator phase holds ~300 B per patch face plus ~20 MB that does not scale with the
+// patch (heap arenas), which the baseline's margin covers. The carried best edge (16 B
+// per vertex record and per PatchInput vertex, ~8 B per face each) added 16. The finish
+// builds its input without the BFS and frees each gathered array as soon as its part
+// of the input exists (build_whole_patch): measured 131 B/face (baseline excluded) at
+// 1.76M faces before the carried bests (`qemflow simplify b2m.ply --clusters 2
+// --in-core-faces 1900000`, VmRSS sampled); with them the 5M blob at 512M peaks at
+// 175 B per finish face above the baseline (441 MB, 2.52M faces; 159 before), at the
+// end of build_whole_patch (the gathered records and the input's vertex arrays alive
+// together), so 180.
 inline constexpr uint64_t kPatchBytesPerFace = 276;
-inline constexpr uint64_t kInCoreBytesPerFace = 170;
+inline constexpr uint64_t kInCoreBytesPerFace = 180;
 
 // The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured
 // baseline), job, scratch, load, simplify_blocks, write (same bytes as --in-core),
