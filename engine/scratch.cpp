@@ -16,7 +16,7 @@
 #include <random>
 
 #include "config/size.hpp"
-#include "io/hash64.hpp"
+#include "engine/frame_checksum.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -24,7 +24,8 @@ namespace qemflow::engine {
 namespace {
 
 constexpr char magic[4] = {'Q', 'F', 'C', 'K'};
-constexpr uint16_t frame_version = 1;
+// Version 2: the raw payload's trailer is frame_checksum (version 1 had XXH64).
+constexpr uint16_t frame_version = 2;
 constexpr uint32_t flag_raw = 1;
 
 // The default codec: the base, or the newest live DefaultFrameCodec's. Read on every
@@ -141,10 +142,10 @@ size_t frame_bound(size_t raw_bytes) {
   return frame_header_bytes + std::max(ZSTD_compressBound(raw_bytes), raw_bytes + sizeof(uint64_t));
 }
 
-uint64_t xxh64_of_pieces(const std::vector<Piece>& pieces) {
-  io::Xxh64Stream hash;
-  for (const Piece& piece : pieces) hash.add(piece.data, piece.bytes);
-  return hash.finish();
+uint64_t checksum_of_pieces(const std::vector<Piece>& pieces) {
+  FrameChecksum sum;
+  for (const Piece& piece : pieces) sum.add(piece.data, piece.bytes);
+  return sum.finish();
 }
 
 RawFrameEnvelope raw_frame_envelope(uint64_t tag, uint32_t record_size, const std::vector<Piece>& pieces,
@@ -154,7 +155,7 @@ RawFrameEnvelope raw_frame_envelope(uint64_t tag, uint32_t record_size, const st
   if (at != raw) throw Error(ErrorKind::internal, "raw_frame_envelope: pieces do not add up to the count");
   RawFrameEnvelope envelope;
   write_header(envelope.header.data(), tag, record_size, count, raw + sizeof(uint64_t), flag_raw);
-  put<uint64_t>(envelope.trailer.data(), xxh64_of_pieces(pieces));
+  put<uint64_t>(envelope.trailer.data(), checksum_of_pieces(pieces));
   envelope.bytes = frame_header_bytes + raw + sizeof(uint64_t);
   return envelope;
 }
@@ -189,7 +190,7 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
       at += piece.bytes;
     }
     if (at != raw) throw Error(ErrorKind::internal, "encode_frame: pieces do not add up to the count");
-    put<uint64_t>(payload + raw, io::xxh64(payload, raw));
+    put<uint64_t>(payload + raw, frame_checksum(payload, raw));
     write_header(frame.data(), tag, record_size, count, raw + sizeof(uint64_t), flag_raw);
     return frame;
   }
@@ -254,7 +255,7 @@ FrameHeader decode_frame_payload(const std::byte* header_bytes, Bytes& payload, 
   FrameHeader header = check_header(header_bytes, payload.size(), record_size, max_records, where);
   const size_t raw = header.count * record_size;
   if (header.raw) {
-    if (get<uint64_t>(payload.data() + raw) != io::xxh64(payload.data(), raw)) corrupt(where, "payload checksum mismatch");
+    if (get<uint64_t>(payload.data() + raw) != frame_checksum(payload.data(), raw)) corrupt(where, "payload checksum mismatch");
     payload.resize(raw);  // the records are the payload: no copy
     return header;
   }
@@ -273,7 +274,7 @@ FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t reco
   size_t raw = header.count * record_size;
   if (header.raw) {
     const std::byte* payload = frame + frame_header_bytes;
-    if (get<uint64_t>(payload + raw) != io::xxh64(payload, raw)) corrupt(where, "payload checksum mismatch");
+    if (get<uint64_t>(payload + raw) != frame_checksum(payload, raw)) corrupt(where, "payload checksum mismatch");
     std::memcpy(out, payload, raw);
     return header;
   }

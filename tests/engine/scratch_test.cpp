@@ -4,10 +4,11 @@
 #include <unistd.h>
 
 #include <cstring>
+#include <algorithm>
 #include <numeric>
 
 #include "test_support.hpp"
-#include "io/hash64.hpp"
+#include "engine/frame_checksum.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -120,9 +121,9 @@ TEST(Frame, ARawFrameWrittenFromPiecesIsTheSameBytes) {
       pieces.push_back({bytes.data() + at, std::min(cut, bytes.size() - at)});
       if (at == 0) pieces.push_back({bytes.data(), 0});
     }
-    EXPECT_EQ(xxh64_of_pieces(pieces), io::xxh64(bytes.data(), bytes.size())) << cut;
+    EXPECT_EQ(checksum_of_pieces(pieces), frame_checksum(bytes.data(), bytes.size())) << cut;
   }
-  for (size_t n : {0, 5, 31, 32, 64, 99}) EXPECT_EQ(xxh64_of_pieces({{bytes.data(), n}}), io::xxh64(bytes.data(), n)) << n;
+  for (size_t n : {0, 5, 31, 32, 64, 99}) EXPECT_EQ(checksum_of_pieces({{bytes.data(), n}}), frame_checksum(bytes.data(), n)) << n;
   std::vector<Piece> pieces{{bytes.data(), 40'000}, {bytes.data() + 40'000, 60'000}};
   Bytes frame = encode_frame(3, 4, pieces, 25'000, FrameCodec::uncompressed());
   RawFrameEnvelope envelope = raw_frame_envelope(3, 4, pieces, 25'000);
@@ -233,6 +234,50 @@ TEST(ScratchStore, MissingOrReadOnlyDirectoryIsAResourceError) {
     EXPECT_EQ(e.kind(), ErrorKind::resource);
   }
   std::filesystem::permissions(tmp.path(), std::filesystem::perms::owner_all);
+}
+
+
+// The raw frames' checksum must catch what a torn or corrupted write does: any flipped
+// bit, bytes moved around (whole stripes and whole 1 KiB blocks), a frame cut short
+// or padded with zeros.
+TEST(FrameChecksumTest, CatchesFlipsMovesAndLengthChanges) {
+  std::vector<uint8_t> bytes(5000);
+  for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 2654435761u >> 11);
+  const uint64_t good = frame_checksum(bytes.data(), bytes.size());
+  EXPECT_EQ(frame_checksum(bytes.data(), bytes.size()), good);
+  for (size_t at = 0; at < bytes.size(); at += 7) {
+    for (int bit : {0, 5, 7}) {
+      bytes[at] ^= uint8_t(1 << bit);
+      EXPECT_NE(frame_checksum(bytes.data(), bytes.size()), good) << at << " bit " << bit;
+      bytes[at] ^= uint8_t(1 << bit);
+    }
+  }
+  auto swapped = [&](size_t a, size_t b, size_t n) {
+    std::vector<uint8_t> copy = bytes;
+    std::swap_ranges(copy.begin() + int64_t(a), copy.begin() + int64_t(a + n), copy.begin() + int64_t(b));
+    return frame_checksum(copy.data(), copy.size());
+  };
+  EXPECT_NE(swapped(0, 64, 64), good);      // two stripes of one block
+  EXPECT_NE(swapped(0, 1024, 1024), good);  // two blocks
+  EXPECT_NE(swapped(8, 16, 8), good);       // two words of one stripe
+  EXPECT_NE(frame_checksum(bytes.data(), bytes.size() - 1), good);
+  std::vector<uint8_t> padded = bytes;
+  padded.push_back(0);
+  EXPECT_NE(frame_checksum(padded.data(), padded.size()), good);
+  std::vector<uint8_t> zeros(64, 0);
+  EXPECT_NE(frame_checksum(zeros.data(), 64), frame_checksum(zeros.data(), 63));
+  EXPECT_NE(frame_checksum(zeros.data(), 0), frame_checksum(zeros.data(), 1));
+}
+
+TEST(FrameChecksumTest, AnySplitIntoPiecesGivesTheSameSum) {
+  std::vector<uint8_t> bytes(20'000);
+  for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 40503u >> 7);
+  const uint64_t whole = frame_checksum(bytes.data(), bytes.size());
+  for (size_t cut : {1, 12, 63, 64, 65, 1000, 1024, 1025, 7777}) {
+    FrameChecksum sum;
+    for (size_t at = 0; at < bytes.size(); at += cut) sum.add(bytes.data() + at, std::min(cut, bytes.size() - at));
+    EXPECT_EQ(sum.finish(), whole) << cut;
+  }
 }
 
 }  // namespace
