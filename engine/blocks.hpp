@@ -70,6 +70,9 @@ static_assert(sizeof(PackedBlockFace) == 80);
 // the output writer needs nothing else, and positions only served to find the cell.
 // 6x to 10x fewer bytes than a BlockFace to store, write and read back.
 constexpr uint32_t triangle32_record_size = 3 * sizeof(uint32_t);
+// Vertex frames in scratch: xyz as floats when every coordinate of the frame is one
+// exactly, else as Points (FrameRef::record_size says which).
+constexpr uint32_t float_vertex_record_size = 3 * sizeof(float);
 constexpr uint32_t triangle64_record_size = 3 * sizeof(uint64_t);
 bool is_triangle_record(uint32_t record_size);
 // Triangle-only records (either width) to Triangles.
@@ -83,7 +86,19 @@ struct BlockGrid {
   Point min{0, 0, 0}, max{0, 0, 0};
   std::array<uint32_t, 3> dims{1, 1, 1};
   uint32_t count() const { return dims[0] * dims[1] * dims[2]; }
-  uint32_t cell_of(const Point& p) const;
+  // Inline: the loaders call it once a face.
+  uint32_t cell_of(const Point& p) const {
+    uint32_t idx[3];
+    for (int i = 0; i < 3; ++i) {
+      const double extent = max[i] - min[i];
+      const double x = (extent > 0 ? (p[i] - min[i]) / extent : 0.0) * dims[i];
+      // floor, then clamp to [0, dims), without std::floor (a libm call: the baseline
+      // x86-64 has no SSE4.1 round). Same cells as int64_t(floor(x)) clamped: below 0
+      // and NaN give 0, and so does 2^63 and up (that conversion's x86 result).
+      idx[i] = !(x >= 0) ? 0 : x < double(dims[i]) ? uint32_t(x) : x < 0x1p63 ? dims[i] - 1 : 0;
+    }
+    return (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0];
+  }
   // About `blocks` cells over the box, cubes as near as the box allows.
   static BlockGrid around(const Point& min, const Point& max, uint32_t blocks);
 };
@@ -93,7 +108,7 @@ struct VertexStore {
   uint64_t count = 0;
   uint64_t window = 0;
   std::vector<Point> resident;                   // all of them, when resident
-  std::vector<std::vector<FrameRef>> windows;    // else frames per window (tag = first index)
+  std::vector<std::vector<FrameRef>> windows;    // else frames per window (tag = first index; float or Point records)
   bool is_resident() const { return windows.empty(); }
 };
 

@@ -233,7 +233,7 @@ class VertexFrameWriter {
  public:
   VertexFrameWriter(Job& job, ScratchStore& scratch, VertexStore& store)
       : job_(job), scratch_(scratch), store_(store) {}
-  void write(uint64_t window, Bytes frame, uint64_t count, uint64_t first, Lease lease) {
+  void write(uint64_t window, Bytes frame, uint64_t count, uint64_t first, uint32_t record_size, Lease lease) {
     if (window >= store_.windows.size()) {
       store_.windows.resize(window + 1);
       files_.resize(window + 1, UINT32_MAX);
@@ -243,7 +243,7 @@ class VertexFrameWriter {
       files_[window] = scratch_.create_file("vertices-" + std::to_string(window));
     }
     uint64_t size = frame.size();
-    store_.windows[window].push_back({files_[window], offsets_[window], size, count, first});
+    store_.windows[window].push_back({files_[window], offsets_[window], size, count, first, record_size});
     offsets_[window] += size;
     auto shared = std::make_shared<std::pair<Bytes, Lease>>(std::move(frame), std::move(lease));
     ScratchStore* scratch = &scratch_;
@@ -300,7 +300,11 @@ class ResidentBlocks {
     Bytes& page = pages.back();
     const size_t at = page.size();
     page.resize(at + record_size_);
-    std::memcpy(page.data() + at, record, record_size_);
+    if (record_size_ == triangle32_record_size) {
+      std::memcpy(page.data() + at, record, triangle32_record_size);  // no libc call
+    } else {
+      std::memcpy(page.data() + at, record, record_size_);
+    }
     --faces_left_;
   }
   std::vector<std::vector<Bytes>> finish(Lease& lease) {
@@ -747,7 +751,16 @@ class Loader {
         uint64_t first = batch.first_vertex + done;
         uint64_t c = first / chunk;
         uint64_t n = std::min<uint64_t>(batch.vertices.size() - done, (c + 1) * chunk - first);
-        item.vertex_frames.emplace_back(c, encode_frame(first, sizeof(Point), batch.vertices.data() + done, n));
+        if (item.box.float_exact) {
+          // Every coordinate of the batch is a float: the frame holds floats, half the
+          // scratch bytes (load_vertex_window widens them back, exactly).
+          UninitializedVector<float> xyz(3 * n);
+          for (uint64_t i = 0; i < n; ++i)
+            for (int k = 0; k < 3; ++k) xyz[3 * i + k] = float(batch.vertices[done + i][k]);
+          item.vertex_frames.emplace_back(c, encode_frame(first, float_vertex_record_size, xyz.data(), n));
+        } else {
+          item.vertex_frames.emplace_back(c, encode_frame(first, sizeof(Point), batch.vertices.data() + done, n));
+        }
         done += n;
       }
     };
@@ -756,10 +769,12 @@ class Loader {
       box_.add(item.box);
       for (auto& [c, frame] : item.vertex_frames) {
         uint64_t first = 0, count = 0;
-        std::memcpy(&first, frame.data() + 12, 8);  // the frame header's tag and count
+        uint16_t record_size = 0;
+        std::memcpy(&record_size, frame.data() + 6, 2);  // the frame header's record size, tag and count
+        std::memcpy(&first, frame.data() + 12, 8);
         std::memcpy(&count, frame.data() + 20, 8);
         Lease frame_lease = lease.split(frame.capacity());
-        vertex_writer.write(c, std::move(frame), count, first, std::move(frame_lease));
+        vertex_writer.write(c, std::move(frame), count, first, record_size, std::move(frame_lease));
       }
       vertex_count = std::max<uint64_t>(vertex_count, batch.first_vertex + batch.vertices.size());
       if (weld_spill) {
@@ -774,13 +789,15 @@ class Loader {
         uint64_t lo = std::min({t[0], t[1], t[2]}), hi = std::max({t[0], t[1], t[2]});
         max_index = std::max(max_index, hi);
         if (info.vertex_count && hi >= *info.vertex_count) index_out_of_range(input_.path, face, hi, *info.vertex_count);
-        if (hi / chunk <= lo / chunk + 1) {
+        // hi / chunk <= lo / chunk + 1, with one division instead of two.
+        const uint64_t lo_chunk = lo / chunk;
+        if (hi < (lo_chunk + 2) * chunk) {
           if (local_size == triangle32_record_size) {
             const uint32_t ids[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
-            local.add(uint32_t(lo / chunk), ids);
+            local.add(uint32_t(lo_chunk), ids);
           } else {
             LocalFace record{face, t};
-            local.add(uint32_t(lo / chunk), &record);
+            local.add(uint32_t(lo_chunk), &record);
           }
           ++mesh_.local_faces;
           continue;
@@ -1131,17 +1148,6 @@ void unpack_block_faces(const std::byte* records, uint64_t count, uint32_t recor
   }
 }
 
-uint32_t BlockGrid::cell_of(const Point& p) const {
-  uint32_t idx[3];
-  for (int i = 0; i < 3; ++i) {
-    double extent = max[i] - min[i];
-    double t = extent > 0 ? (p[i] - min[i]) / extent : 0.0;
-    int64_t c = int64_t(std::floor(t * dims[i]));
-    idx[i] = uint32_t(std::clamp<int64_t>(c, 0, int64_t(dims[i]) - 1));
-  }
-  return (idx[2] * dims[1] + idx[1]) * dims[0] + idx[0];
-}
-
 BlockGrid BlockGrid::around(const Point& min, const Point& max, uint32_t blocks) {
   BlockGrid grid;
   grid.min = min;
@@ -1213,14 +1219,35 @@ void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& stor
     std::copy(store.resident.begin() + first, store.resident.begin() + first + n, out);
     return;
   }
-  for_each_frame(job, scratch, "vertices", "vertex frames", store.windows.at(window), sizeof(Point),
-                 [&](const FrameHeader& header, Bytes& records, Lease&) {
-                   if (header.tag < first || header.tag + header.count > first + store.window) {
-                     throw Error(ErrorKind::internal, "vertex frame outside its window");
-                   }
-                   std::memcpy(out + (header.tag - first), records.data(), records.size());
-                 },
-                 {}, 0);
+  // Frames of floats (float_vertex_record_size) or of Points; one pass per run of
+  // frames of one size (a window mixes them only when the input mixes float-exact and
+  // other coordinates).
+  const auto& frames = store.windows.at(window);
+  for (size_t begin = 0; begin < frames.size();) {
+    const uint32_t record_size = frames[begin].record_size ? frames[begin].record_size : uint32_t(sizeof(Point));
+    size_t end = begin + 1;
+    while (end < frames.size() && (frames[end].record_size ? frames[end].record_size : sizeof(Point)) == record_size) ++end;
+    const std::vector<FrameRef> run(frames.begin() + int64_t(begin), frames.begin() + int64_t(end));
+    for_each_frame(job, scratch, "vertices", "vertex frames", run, record_size,
+                   [&](const FrameHeader& header, Bytes& records, Lease&) {
+                     if (header.tag < first || header.tag + header.count > first + store.window) {
+                       throw Error(ErrorKind::internal, "vertex frame outside its window");
+                     }
+                     Point* at = out + (header.tag - first);
+                     if (record_size == sizeof(Point)) {
+                       std::memcpy(static_cast<void*>(at), records.data(), records.size());
+                       return;
+                     }
+                     const std::byte* xyz = records.data();
+                     for (uint64_t i = 0; i < header.count; ++i, xyz += float_vertex_record_size) {
+                       float p[3];
+                       std::memcpy(p, xyz, sizeof p);
+                       at[i] = {p[0], p[1], p[2]};
+                     }
+                   },
+                   {}, 0);
+    begin = end;
+  }
 }
 
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,

@@ -269,7 +269,7 @@ uint64_t expected_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {
 }
 
 // Raw frames: blocks are 12 bytes a face (triangle records), bucketed local faces 12,
-// vertex chunks 24 bytes a vertex (~36 a face; spanning faces cost more, ~170, but are
+// vertex chunks 24 bytes a vertex, 12 when float (~36 a face; spanning faces cost more, ~170, but are
 // few in real meshes); a binary PLY holds ~19 bytes a face (13 a face, 12 a vertex,
 // half as many vertices as faces).
 uint64_t expected_raw_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {

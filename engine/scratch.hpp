@@ -157,6 +157,7 @@ struct FrameRef {
   uint64_t bytes = 0;     // encoded size, header included
   uint64_t count = 0;     // records
   uint64_t tag = 0;
+  uint32_t record_size = 0;  // set where one file mixes record sizes (vertex frames)
 };
 
 // What a ScratchStore encodes its frames with. automatic: raw when the directory has

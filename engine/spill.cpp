@@ -60,20 +60,11 @@ uint64_t BucketSpill::max_bucket_records() const {
   return m;
 }
 
-void BucketSpill::add(uint32_t bucket, const void* record) {
-  if (bucket >= buckets_.size()) buckets_.resize(bucket + 1);
-  Bucket& b = buckets_[bucket];
-  if (b.pages.empty() || b.used_in_last + record_size_ > page_bytes_) {
-    if (pages_held_ >= page_limit_) flush_largest();
-    b.pages.push_back(std::make_unique_for_overwrite<std::byte[]>(page_bytes_));
-    b.used_in_last = 0;
-    ++pages_held_;
-  }
-  std::memcpy(b.pages.back().get() + b.used_in_last, record, record_size_);
-  b.used_in_last += record_size_;
-  ++b.buffered;
-  ++b.records;
-  ++total_records_;
+void BucketSpill::start_page(Bucket& b) {
+  if (pages_held_ >= page_limit_) flush_largest();
+  b.pages.push_back(std::make_unique_for_overwrite<std::byte[]>(page_bytes_));
+  b.used_in_last = 0;
+  ++pages_held_;
 }
 
 void BucketSpill::flush_largest() {
