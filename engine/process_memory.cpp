@@ -34,9 +34,9 @@ bool reset_peak_resident() {
   return ok;
 }
 
-void tune_allocator() {
+void tune_allocator(int trim_threshold) {
   mallopt(M_MMAP_THRESHOLD, 4 << 20);
-  mallopt(M_TRIM_THRESHOLD, 1 << 20);
+  mallopt(M_TRIM_THRESHOLD, trim_threshold);
   mallopt(M_ARENA_MAX, 2);
 }
 

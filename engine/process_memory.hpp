@@ -14,9 +14,13 @@ bool reset_peak_resident();
 // mmap threshold of 4 MiB, so that every big buffer (vertex windows, face ranges) is
 // its own mapping, unmapped on free (glibc's dynamic threshold would otherwise move
 // big buffers onto the heap, where freed space stays resident), few arenas, and a low
-// trim threshold. Measured on 20M faces at 256M: 256 KiB costs 35% more time in page
-// faults; 16 MiB and up lets heap slack push peak RSS to within 8% of the budget.
-void tune_allocator();
+// trim threshold (1 MiB unless given). Measured on 20M faces at 256M: 256 KiB costs
+// 35% more time in page faults; 16 MiB and up lets heap slack push peak RSS to within
+// 8% of the budget. The re-encode passes 8 MiB: its frame buffers (1-2 MiB, a few
+// in flight) otherwise go back to the OS and fault in again, 236k page faults for
+// 20M faces at 256M against 64k (a fifth of its CPU time), peak RSS 94-100 MiB either
+// way; the slack (8 MiB an arena, two arenas) stays inside the baseline's margin.
+void tune_allocator(int trim_threshold = 1 << 20);
 // Returns freed heap memory to the OS (malloc_trim); cheap enough between passes.
 void trim_allocator();
 
