@@ -172,6 +172,10 @@ struct LoadedMesh {
 struct LoadHooks {
   std::function<void(const LoadedMesh&)> counted;
   std::function<void(uint64_t first, const Point* points, uint64_t count)> vertices;
+  // Optional, out of core: for a float-exact mesh loaded as triangles only, the
+  // vertices as xyz floats instead of `vertices` (the buffer, like the points, stays
+  // valid until the I/O thread has drained).
+  std::function<void(uint64_t first, const float* xyz, uint64_t count)> float_vertices;
 };
 
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,

@@ -925,7 +925,16 @@ class Loader {
     }
     BucketSpill blocks(job_, scratch_, "blocks-local", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
-    UninitializedVector<Point> pair(2 * chunk);  // chunks c and c+1
+    // Float-exact triangle-only loads (the re-encode) keep the pair as the frames'
+    // floats: half the memory the face lookups wander over, no widening, and the
+    // chunk goes to hooks_.float_vertices as it is. Others widen to Points.
+    const bool floats = verbatim_triangles() && box_.float_exact && bool(hooks_.float_vertices);
+    UninitializedVector<Point> pair(floats ? 0 : 2 * chunk);  // chunks c and c+1
+    UninitializedVector<float> pair_xyz(floats ? 6 * chunk : 0);
+    auto position = [&](uint64_t at) -> Point {
+      if (floats) return {pair_xyz[3 * at], pair_xyz[3 * at + 1], pair_xyz[3 * at + 2]};
+      return pair[at];
+    };
     uint32_t upper_loaded = UINT32_MAX;  // which chunk sits in the upper half
     bool handed_out = false;  // the lower half may still be read by an I/O task
     auto wait_for_hand_out = [&] {
@@ -937,22 +946,36 @@ class Loader {
     for (uint32_t c = 0; c < chunks; ++c) {
       const bool has_local = c < local.bucket_count() && !local.frames(c).empty();
       const bool has_corners = c < corners.bucket_count() && !corners.frames(c).empty();
-      if (!has_local && !has_corners && !hooks_.vertices) continue;
+      if (!has_local && !has_corners && !hooks_.vertices && !floats) continue;
       wait_for_hand_out();
       const uint64_t first = uint64_t(c) * chunk;
       const uint64_t n = std::min<uint64_t>(chunk, mesh_.vertex_count - std::min(first, mesh_.vertex_count));
       if (upper_loaded == c) {
-        std::copy(pair.begin() + int64_t(chunk), pair.end(), pair.begin());
+        if (floats) {
+          std::copy(pair_xyz.begin() + int64_t(3 * chunk), pair_xyz.end(), pair_xyz.begin());
+        } else {
+          std::copy(pair.begin() + int64_t(chunk), pair.end(), pair.begin());
+        }
+      } else if (floats) {
+        load_float_vertex_window(c, pair_xyz.data());
       } else {
         load_vertex_window(job_, scratch_, mesh_.vertices, c, pair.data());
       }
       upper_loaded = UINT32_MAX;
       if (has_local && c + 1 < chunks) {
-        load_vertex_window(job_, scratch_, mesh_.vertices, c + 1, pair.data() + chunk);
+        if (floats) {
+          load_float_vertex_window(c + 1, pair_xyz.data() + 3 * chunk);
+        } else {
+          load_vertex_window(job_, scratch_, mesh_.vertices, c + 1, pair.data() + chunk);
+        }
         upper_loaded = c + 1;
       }
-      if (hooks_.vertices && n > 0) {
-        hooks_.vertices(first, pair.data(), n);
+      if (n > 0 && (floats || hooks_.vertices)) {
+        if (floats) {
+          hooks_.float_vertices(first, pair_xyz.data(), n);
+        } else {
+          hooks_.vertices(first, pair.data(), n);
+        }
         handed_out = true;
       }
       if (has_local) {
@@ -967,8 +990,8 @@ class Loader {
                 for (uint64_t i = 0; i < header.count; ++i) {
                   uint32_t ids[3];
                   std::memcpy(ids, records.data() + i * local_size, sizeof ids);
-                  cells[i] = triangle_record({ids[0], ids[1], ids[2]}, pair[ids[0] - first], pair[ids[1] - first],
-                                             pair[ids[2] - first], out.data() + i * size);
+                  cells[i] = triangle_record({ids[0], ids[1], ids[2]}, position(ids[0] - first), position(ids[1] - first),
+                                             position(ids[2] - first), out.data() + i * size);
                 }
                 records.swap(out);
                 return;
@@ -984,7 +1007,7 @@ class Loader {
                   std::memcpy(&local_face, records.data() + i * local_size, sizeof local_face);
                 }
                 face.id = local_face.id;
-                for (int k = 0; k < 3; ++k) face.positions[k] = pair[local_face.vertices[k] - first];
+                for (int k = 0; k < 3; ++k) face.positions[k] = position(local_face.vertices[k] - first);
                 cells[i] = prepare(face, local_face.vertices) ? make_record(face, out.data() + i * size) : UINT32_MAX;
               }
               records.swap(out);
@@ -1011,7 +1034,7 @@ class Loader {
               Bytes out(header.count * sizeof(ResolvedCorner));
               auto* res = reinterpret_cast<ResolvedCorner*>(out.data());
               for (uint64_t i = 0; i < header.count; ++i) {
-                res[i] = {refs[i].corner, refs[i].vertex, pair[refs[i].vertex - first]};
+                res[i] = {refs[i].corner, refs[i].vertex, position(refs[i].vertex - first)};
               }
               records.swap(out);
             },
@@ -1024,8 +1047,9 @@ class Loader {
       job_.progress(0.4 + 0.4 * double(c + 1) / chunks, "resolve");
     }
     wait_for_hand_out();
-    mesh_.vertices_delivered = bool(hooks_.vertices);
+    mesh_.vertices_delivered = bool(hooks_.vertices) || floats;
     pair = {};
+    pair_xyz = {};
     give_back(std::move(pair_lease));
     collect_blocks(blocks);
     remove_files(local);
@@ -1083,6 +1107,23 @@ class Loader {
     }
     collect_blocks(spanning_blocks);
     remove_files(resolved_corners);
+  }
+
+  // Window w of a float-exact mesh's vertices (every frame of floats) as xyz floats.
+  void load_float_vertex_window(uint64_t w, float* out) {
+    const VertexStore& store = mesh_.vertices;
+    const uint64_t first = w * store.window;
+    for (const FrameRef& ref : store.windows.at(w)) {
+      if (ref.record_size != float_vertex_record_size) throw Error(ErrorKind::internal, "a vertex frame of doubles in a float-exact mesh");
+    }
+    for_each_frame(job_, scratch_, "vertices", "vertex frames", store.windows.at(w), float_vertex_record_size,
+                   [&](const FrameHeader& header, Bytes& records, Lease&) {
+                     if (header.tag < first || header.tag + header.count > first + store.window) {
+                       throw Error(ErrorKind::internal, "vertex frame outside its window");
+                     }
+                     std::memcpy(out + 3 * (header.tag - first), records.data(), records.size());
+                   },
+                   {}, 0);
   }
 
   void remove_files(const BucketSpill& spill) {

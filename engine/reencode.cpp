@@ -56,6 +56,33 @@ void submit_vertices(Job& job, io::MeshWriter& writer, const Point* points, uint
   }
 }
 
+// Writes `n` vertices given as xyz floats (valid until the I/O thread drains): to a
+// float binary PLY they are its bytes already, written with no copy; any other output
+// gets them widened, a slice at a time, each written before the next.
+void submit_float_vertices(Job& job, io::MeshWriter& writer, const float* xyz, uint64_t n) {
+  const bool as_they_are = encodes_here(writer) && !*writer.ply_vertex_double();
+  for (uint64_t first = 0; first < n; first += vertices_per_write) {
+    const uint64_t count = std::min(vertices_per_write, n - first);
+    const float* slice = xyz + 3 * first;
+    if (as_they_are) {
+      job.io().submit(
+          "write vertices",
+          [&writer, slice, count] { writer.write_encoded_vertices(reinterpret_cast<const char*>(slice), count); },
+          job.error_handler(), count * 12);
+      continue;
+    }
+    for (uint64_t at = 0; at < count; at += 4096) {
+      const uint64_t m = std::min<uint64_t>(4096, count - at);
+      std::vector<Point> points(m);
+      for (uint64_t i = 0; i < m; ++i) {
+        const float* p = slice + 3 * (at + i);
+        points[i] = {p[0], p[1], p[2]};
+      }
+      job.io().call("write vertices", [&] { writer.write_vertices(points.data(), m); });
+    }
+  }
+}
+
 // Hands `count` PLY triangles, encoded at `bytes` (with the lease that covers them),
 // to the I/O thread to write.
 template <class Buffer>
@@ -329,6 +356,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     LoadHooks hooks;
     hooks.counted = open_output;
     hooks.vertices = [&](uint64_t, const Point* points, uint64_t n) { submit_vertices(job, *writer, points, n); };
+    hooks.float_vertices = [&](uint64_t, const float* xyz, uint64_t n) { submit_float_vertices(job, *writer, xyz, n); };
     // The input as it is: re-encode keeps every vertex and face.
     LoadedMesh mesh = load_into_blocks(job, scratch, options.input, LoadOptions::verbatim(options.load), hooks);
     open_output(mesh);

@@ -97,6 +97,25 @@ TEST(Reencode, OutOfCoreDereferenceWithTinyWindowsGivesTheSameMesh) {
   EXPECT_FALSE(default_frame_codec().raw);  // the run's default codec ended with it
 }
 
+// Vertex frames hold floats only for batches whose coordinates all are floats: a mesh
+// whose second half is not float-exact goes out of core through both kinds (and
+// windows that hold both), and comes back bit for bit (written as doubles).
+TEST(Reencode, OutOfCoreWithFloatAndDoubleVertexFramesGivesTheSameMesh) {
+  TempDir dir;
+  io::IndexedMesh mesh = io::read_mesh(make_mesh(dir, 20'000));
+  for (size_t i = mesh.vertices.size() / 2; i < mesh.vertices.size(); ++i) mesh.vertices[i][1] += 1e-9;
+  io::WriteOptions write_options;
+  write_options.double_precision = true;
+  io::write_mesh(dir / "mixed.ply", mesh, write_options);
+  Governor governor(64ull << 20, 0);
+  ReencodeOptions options{.input = dir / "mixed.ply", .output = dir / "out.ply", .scratch_dir = dir.path()};
+  options.load = {.faces_per_block = 2'000, .window_vertices = 997, .range_faces = 1'231, .force_out_of_core = true};
+  options.scratch_codec = ScratchCodec::raw;
+  auto result = run_reencode(governor, options, {});
+  EXPECT_TRUE(result.report["out_of_core_dereference"].get<bool>());
+  expect_same_mesh(dir / "mixed.ply", dir / "out.ply");
+}
+
 TEST(Reencode, ObjInputWithUnknownCountsGoesOutOfCore) {
   TempDir dir;
   auto in = make_mesh(dir, 20'000, "in.obj");
