@@ -160,6 +160,8 @@ struct InputItem {
   Bytes block_records;                                    // faces made into block records
   std::vector<uint32_t> cells;                            // and their cells
   uint64_t dropped = 0;                                   // faces with a repeated welded vertex
+  uint64_t max_index = 0;                                 // out of core: the largest vertex index
+  bool classified = false;  // out of core: block_records hold u32 ids, cells the local bucket (or UINT32_MAX)
 };
 
 // The input, read from the I/O thread. A binary PLY goes through the bulk reader:
@@ -307,6 +309,23 @@ class ResidentBlocks {
     }
     --faces_left_;
   }
+  void add_run(uint32_t cell, const std::byte* records, uint64_t count) {
+    auto& pages = pages_[cell];
+    while (count > 0) {
+      if (pages.empty() || pages.back().size() == page_records_ * record_size_) {
+        pages.emplace_back();
+        pages.back().reserve(page_records_ * record_size_);
+      }
+      Bytes& page = pages.back();
+      const size_t at = page.size();
+      const uint64_t n = std::min<uint64_t>(count, page_records_ - at / record_size_);
+      page.resize(at + n * record_size_);
+      std::memcpy(page.data() + at, records, n * record_size_);
+      records += n * record_size_;
+      count -= n;
+      faces_left_ -= n;
+    }
+  }
   std::vector<std::vector<Bytes>> finish(Lease& lease) {
     lease = std::move(lease_);
     return std::move(pages_);
@@ -433,10 +452,27 @@ class Loader {
   }
   template <class Blocks>
   void add_records(Blocks& blocks, const Bytes& records, const std::vector<uint32_t>& cells) {
-    for (size_t i = 0; i < cells.size(); ++i) {
-      blocks.add(cells[i], records.data() + i * mesh_.block_record_size);
-      ++mesh_.block_faces[cells[i]];
+    add_record_runs(blocks, records.data(), cells.data(), cells.size());
+  }
+  // Records with their cells, filed a run of equal cells at a time (neighbouring faces
+  // mostly share a block); UINT32_MAX cells are dropped faces. Returns how many.
+  template <class Blocks>
+  uint64_t add_record_runs(Blocks& blocks, const std::byte* records, const uint32_t* cells, uint64_t count) {
+    const uint32_t size = mesh_.block_record_size;
+    uint64_t dropped = 0;
+    for (uint64_t i = 0; i < count;) {
+      const uint32_t cell = cells[i];
+      uint64_t end = i + 1;
+      while (end < count && cells[end] == cell) ++end;
+      if (cell == UINT32_MAX) {
+        dropped += end - i;
+      } else {
+        blocks.add_run(cell, records + i * size, end - i);
+        mesh_.block_faces[cell] += end - i;
+      }
+      i = end;
     }
+    return dropped;
   }
 
   // Triangle-only records of the input's faces as they are (no weld, every face): the
@@ -763,6 +799,28 @@ class Loader {
         }
         done += n;
       }
+      // Faces sorted into local buckets here, on every compute thread, when local
+      // records are u32 ids (the sink then files them a run at a time).
+      if (local_size != triangle32_record_size || batch.triangles.empty()) return;
+      const size_t faces = batch.triangles.size();
+      item.block_records.resize(faces * triangle32_record_size);
+      item.cells.resize(faces);
+      uint64_t largest = 0;
+      for (size_t i = 0; i < faces; ++i) {
+        const Triangle& t = batch.triangles[i];
+        const uint64_t lo = std::min({t[0], t[1], t[2]}), hi = std::max({t[0], t[1], t[2]});
+        largest = std::max(largest, hi);
+        if (info.vertex_count && hi >= *info.vertex_count) {
+          index_out_of_range(input_.path, batch.first_triangle + i, hi, *info.vertex_count);
+        }
+        const uint32_t ids[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
+        std::memcpy(item.block_records.data() + i * triangle32_record_size, ids, sizeof ids);
+        // Local when hi / chunk <= lo / chunk + 1 (one division instead of two).
+        const uint64_t lo_chunk = lo / chunk;
+        item.cells[i] = hi < (lo_chunk + 2) * chunk ? uint32_t(lo_chunk) : UINT32_MAX;
+      }
+      item.max_index = largest;
+      item.classified = true;
     };
     pass.sink = [&](InputItem& item, Lease& lease) {
       const auto& batch = item.batch;
@@ -783,6 +841,35 @@ class Loader {
           weld_spill->add(weld_bucket(record.position, weld_buckets), &record);
         }
       }
+      auto spanning_face = [&](uint64_t face, const Triangle& t) {
+        for (int k = 0; k < 3; ++k) {
+          CornerRef ref{face * 3 + uint64_t(k), t[k]};
+          corners.add(uint32_t(t[k] / chunk), &ref);
+        }
+        if (spanning) {
+          LocalFace record{face, t};
+          spanning->add(0, &record);
+        }
+        ++mesh_.corner_faces;
+      };
+      if (item.classified) {
+        max_index = std::max(max_index, item.max_index);
+        const size_t faces = item.cells.size();
+        for (size_t i = 0; i < faces;) {
+          const uint32_t bucket = item.cells[i];
+          size_t end = i + 1;
+          while (end < faces && item.cells[end] == bucket) ++end;
+          if (bucket == UINT32_MAX) {
+            for (size_t f = i; f < end; ++f) spanning_face(batch.first_triangle + f, batch.triangles[f]);
+          } else {
+            local.add_run(bucket, item.block_records.data() + i * triangle32_record_size, end - i);
+            mesh_.local_faces += end - i;
+          }
+          i = end;
+        }
+        face_count = std::max<uint64_t>(face_count, batch.first_triangle + faces);
+        return;
+      }
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
         uint64_t face = batch.first_triangle + i;
         const Triangle& t = batch.triangles[i];
@@ -802,15 +889,7 @@ class Loader {
           ++mesh_.local_faces;
           continue;
         }
-        for (int k = 0; k < 3; ++k) {
-          CornerRef ref{face * 3 + uint64_t(k), t[k]};
-          corners.add(uint32_t(t[k] / chunk), &ref);
-        }
-        if (spanning) {
-          LocalFace record{face, t};
-          spanning->add(0, &record);
-        }
-        ++mesh_.corner_faces;
+        spanning_face(face, t);
       }
       if (!batch.triangles.empty()) face_count = std::max<uint64_t>(face_count, batch.first_triangle + batch.triangles.size());
     };
@@ -1013,16 +1092,8 @@ class Loader {
               records.swap(out);
             },
             [&](const FrameHeader& header, Bytes& records, Lease&) {
-              const uint32_t size = mesh_.block_record_size;
-              const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * size);
-              for (uint64_t i = 0; i < header.count; ++i) {
-                if (cells[i] == UINT32_MAX) {
-                  ++mesh_.dropped_faces;
-                  continue;
-                }
-                blocks.add(cells[i], records.data() + i * size);
-                ++mesh_.block_faces[cells[i]];
-              }
+              const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * mesh_.block_record_size);
+              mesh_.dropped_faces += add_record_runs(blocks, records.data(), cells, header.count);
             },
             sizeof(BlockFace) + sizeof(uint32_t));
       }

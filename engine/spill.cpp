@@ -67,6 +67,23 @@ void BucketSpill::start_page(Bucket& b) {
   ++pages_held_;
 }
 
+void BucketSpill::add_run(uint32_t bucket, const void* records, uint64_t count) {
+  if (bucket >= buckets_.size()) buckets_.resize(bucket + 1);
+  const auto* from = static_cast<const std::byte*>(records);
+  while (count > 0) {
+    Bucket& b = buckets_[bucket];
+    if (b.pages.empty() || b.used_in_last + record_size_ > page_bytes_) start_page(b);
+    const uint64_t n = std::min<uint64_t>(count, (page_bytes_ - b.used_in_last) / record_size_);
+    std::memcpy(b.pages.back().get() + b.used_in_last, from, n * record_size_);
+    b.used_in_last += n * record_size_;
+    b.buffered += n;
+    b.records += n;
+    total_records_ += n;
+    from += n * record_size_;
+    count -= n;
+  }
+}
+
 void BucketSpill::flush_largest() {
   std::vector<uint32_t> order;
   for (uint32_t i = 0; i < buckets_.size(); ++i) {

@@ -60,6 +60,9 @@ class BucketSpill {
     ++b.records;
     ++total_records_;
   }
+  // `count` records laid end to end, all for `bucket`: the same pages and frames as
+  // that many add() calls, copied a page's worth at a time.
+  void add_run(uint32_t bucket, const void* records, uint64_t count);
   // Returns the spill's lease (for its owner to reuse or release).
   Lease finish();
 
