@@ -5,8 +5,8 @@
 #include <bit>
 #include <cstring>
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
+#if defined(__SSE2__) && defined(__GNUC__)
+#include <immintrin.h>
 #endif
 
 namespace qemflow::engine {
@@ -43,9 +43,30 @@ inline uint64_t load64(const unsigned char* p) {
 }
 
 // `count` whole stripes at `p` into the lanes, starting at stripe `in_block` of the
-// current block; returns the stripe of the block reached.
-#if defined(__SSE2__)
-size_t consume(uint64_t* lane_words, const unsigned char* p, size_t count, size_t in_block) {
+// current block; returns the stripe of the block reached. Three versions of the same
+// arithmetic: one lane at a time (any target; the reference), SSE2 (two lanes an
+// instruction) and AVX2 (four), picked once by what the CPU has.
+size_t consume_scalar(uint64_t* acc, const unsigned char* p, size_t count, size_t in_block) {
+  for (size_t s = 0; s < count; ++s, p += stripe_bytes) {
+    for (size_t i = 0; i < lanes; ++i) {
+      const uint64_t data = load64(p + 8 * i);
+      const uint64_t keyed = data ^ keys[in_block + i];
+      acc[i ^ 1] += data;
+      acc[i] += (keyed & 0xFFFFFFFFull) * (keyed >> 32);
+    }
+    if (++in_block == stripes_per_block) {
+      in_block = 0;
+      for (size_t i = 0; i < lanes; ++i) {
+        uint64_t a = acc[i] ^ (acc[i] >> 47);
+        acc[i] = (a ^ keys[scramble_keys + i]) * scramble_prime;
+      }
+    }
+  }
+  return in_block;
+}
+
+#if defined(__SSE2__) && defined(__GNUC__)
+size_t consume_sse2(uint64_t* lane_words, const unsigned char* p, size_t count, size_t in_block) {
   __m128i acc[4];
   for (int i = 0; i < 4; ++i) acc[i] = _mm_load_si128(reinterpret_cast<const __m128i*>(lane_words) + i);
   const __m128i prime = _mm_set1_epi32(int(scramble_prime));
@@ -73,31 +94,63 @@ size_t consume(uint64_t* lane_words, const unsigned char* p, size_t count, size_
   for (int i = 0; i < 4; ++i) _mm_store_si128(reinterpret_cast<__m128i*>(lane_words) + i, acc[i]);
   return in_block;
 }
-#else
-size_t consume(uint64_t* acc, const unsigned char* p, size_t count, size_t in_block) {
+
+__attribute__((target("avx2"))) size_t consume_avx2(uint64_t* lane_words, const unsigned char* p, size_t count,
+                                                   size_t in_block) {
+  __m256i acc[2];
+  for (int i = 0; i < 2; ++i) acc[i] = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(lane_words) + i);
+  const __m256i prime = _mm256_set1_epi32(int(scramble_prime));
   for (size_t s = 0; s < count; ++s, p += stripe_bytes) {
-    for (size_t i = 0; i < lanes; ++i) {
-      const uint64_t data = load64(p + 8 * i);
-      const uint64_t keyed = data ^ keys[in_block + i];
-      acc[i ^ 1] += data;
-      acc[i] += (keyed & 0xFFFFFFFFull) * (keyed >> 32);
+    const auto* key = reinterpret_cast<const __m256i*>(keys.data() + in_block);
+    for (int i = 0; i < 2; ++i) {
+      const __m256i data = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(p) + i);
+      const __m256i keyed = _mm256_xor_si256(data, _mm256_loadu_si256(key + i));
+      const __m256i product = _mm256_mul_epu32(keyed, _mm256_shuffle_epi32(keyed, _MM_SHUFFLE(0, 3, 0, 1)));
+      const __m256i swapped = _mm256_shuffle_epi32(data, _MM_SHUFFLE(1, 0, 3, 2));
+      acc[i] = _mm256_add_epi64(acc[i], _mm256_add_epi64(product, swapped));
     }
     if (++in_block == stripes_per_block) {
       in_block = 0;
-      for (size_t i = 0; i < lanes; ++i) {
-        uint64_t a = acc[i] ^ (acc[i] >> 47);
-        acc[i] = (a ^ keys[scramble_keys + i]) * scramble_prime;
+      const auto* scramble = reinterpret_cast<const __m256i*>(keys.data() + scramble_keys);
+      for (int i = 0; i < 2; ++i) {
+        __m256i a = _mm256_xor_si256(acc[i], _mm256_srli_epi64(acc[i], 47));
+        a = _mm256_xor_si256(a, _mm256_loadu_si256(scramble + i));
+        const __m256i lo = _mm256_mul_epu32(a, prime);
+        const __m256i hi = _mm256_mul_epu32(_mm256_srli_epi64(a, 32), prime);
+        acc[i] = _mm256_add_epi64(lo, _mm256_slli_epi64(hi, 32));
       }
     }
   }
+  for (int i = 0; i < 2; ++i) _mm256_storeu_si256(reinterpret_cast<__m256i*>(lane_words) + i, acc[i]);
   return in_block;
 }
+
+using Consume = size_t (*)(uint64_t*, const unsigned char*, size_t, size_t);
+Consume pick_consume() {
+  __builtin_cpu_init();  // this runs as a static initializer, maybe before libgcc's own
+  return __builtin_cpu_supports("avx2") ? consume_avx2 : consume_sse2;
+}
+const Consume consume = pick_consume();
+#else
+constexpr auto consume = consume_scalar;
 #endif
 
 __extension__ typedef unsigned __int128 uint128;
 uint64_t fold(uint64_t a, uint64_t b) {
   const uint128 product = static_cast<uint128>(a) * b;
   return uint64_t(product) ^ uint64_t(product >> 64);
+}
+
+// The lanes and the length mixed into the checksum.
+uint64_t finish_lanes(const uint64_t* acc, uint64_t total) {
+  uint64_t h = total * 0x9E3779B185EBCA87ull;
+  for (size_t i = 0; i < lanes; i += 2) {
+    h += fold(acc[i] ^ keys[final_keys + i], acc[i + 1] ^ keys[final_keys + i + 1]);
+  }
+  h ^= h >> 37;
+  h *= 0x165667919E3779F9ull;
+  h ^= h >> 32;
+  return h;
 }
 
 }  // namespace
@@ -133,20 +186,27 @@ uint64_t FrameChecksum::finish() const {
     std::memcpy(last, held_, held_bytes_);
     consume(acc, last, 1, stripe_in_block_);
   }
-  uint64_t h = total_ * 0x9E3779B185EBCA87ull;
-  for (size_t i = 0; i < lanes; i += 2) {
-    h += fold(acc[i] ^ keys[final_keys + i], acc[i + 1] ^ keys[final_keys + i + 1]);
-  }
-  h ^= h >> 37;
-  h *= 0x165667919E3779F9ull;
-  h ^= h >> 32;
-  return h;
+  return finish_lanes(acc, total_);
 }
 
 uint64_t frame_checksum(const void* data, size_t size) {
   FrameChecksum sum;
   sum.add(data, size);
   return sum.finish();
+}
+
+uint64_t frame_checksum_one_lane_at_a_time(const void* data, size_t size) {
+  alignas(16) uint64_t acc[lanes];
+  std::copy(keys.begin(), keys.begin() + lanes, acc);
+  const auto* p = static_cast<const unsigned char*>(data);
+  const size_t in_block = consume_scalar(acc, p, size / stripe_bytes, 0);
+  const size_t held = size % stripe_bytes;
+  if (held > 0) {
+    unsigned char last[stripe_bytes] = {};
+    std::memcpy(last, p + size - held, held);
+    consume_scalar(acc, last, 1, in_block);
+  }
+  return finish_lanes(acc, size);
 }
 
 }  // namespace qemflow::engine

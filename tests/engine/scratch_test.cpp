@@ -269,6 +269,14 @@ TEST(FrameChecksumTest, CatchesFlipsMovesAndLengthChanges) {
   EXPECT_NE(frame_checksum(zeros.data(), 0), frame_checksum(zeros.data(), 1));
 }
 
+TEST(FrameChecksumTest, TheVectorVersionAgreesWithTheOneLaneReference) {
+  std::vector<uint8_t> bytes(70'000);
+  for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 2246822519u >> 13);
+  for (size_t n : {0, 1, 63, 64, 65, 1023, 1024, 1025, 4096, 12'345, 70'000}) {
+    EXPECT_EQ(frame_checksum(bytes.data(), n), frame_checksum_one_lane_at_a_time(bytes.data(), n)) << n;
+  }
+}
+
 TEST(FrameChecksumTest, AnySplitIntoPiecesGivesTheSameSum) {
   std::vector<uint8_t> bytes(20'000);
   for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 40503u >> 7);
