@@ -5,7 +5,7 @@
 #include <bit>
 #include <cstring>
 
-#if defined(__SSE2__) && defined(__GNUC__)
+#if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
 #endif
 
@@ -43,9 +43,9 @@ inline uint64_t load64(const unsigned char* p) {
 }
 
 // `count` whole stripes at `p` into the lanes, starting at stripe `in_block` of the
-// current block; returns the stripe of the block reached. Three versions of the same
-// arithmetic: one lane at a time (any target; the reference), SSE2 (two lanes an
-// instruction) and AVX2 (four), picked once by what the CPU has.
+// current block; returns the stripe of the block reached. Two versions of the same
+// arithmetic: one lane at a time (any target; the reference) and AVX2 (four lanes an
+// instruction), picked once by what the CPU has.
 size_t consume_scalar(uint64_t* acc, const unsigned char* p, size_t count, size_t in_block) {
   for (size_t s = 0; s < count; ++s, p += stripe_bytes) {
     for (size_t i = 0; i < lanes; ++i) {
@@ -65,36 +65,7 @@ size_t consume_scalar(uint64_t* acc, const unsigned char* p, size_t count, size_
   return in_block;
 }
 
-#if defined(__SSE2__) && defined(__GNUC__)
-size_t consume_sse2(uint64_t* lane_words, const unsigned char* p, size_t count, size_t in_block) {
-  __m128i acc[4];
-  for (int i = 0; i < 4; ++i) acc[i] = _mm_load_si128(reinterpret_cast<const __m128i*>(lane_words) + i);
-  const __m128i prime = _mm_set1_epi32(int(scramble_prime));
-  for (size_t s = 0; s < count; ++s, p += stripe_bytes) {
-    const auto* key = reinterpret_cast<const __m128i*>(keys.data() + in_block);
-    for (int i = 0; i < 4; ++i) {
-      const __m128i data = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p) + i);
-      const __m128i keyed = _mm_xor_si128(data, _mm_loadu_si128(key + i));
-      const __m128i product = _mm_mul_epu32(keyed, _mm_shuffle_epi32(keyed, _MM_SHUFFLE(0, 3, 0, 1)));
-      const __m128i swapped = _mm_shuffle_epi32(data, _MM_SHUFFLE(1, 0, 3, 2));
-      acc[i] = _mm_add_epi64(acc[i], _mm_add_epi64(product, swapped));
-    }
-    if (++in_block == stripes_per_block) {
-      in_block = 0;
-      const auto* scramble = reinterpret_cast<const __m128i*>(keys.data() + scramble_keys);
-      for (int i = 0; i < 4; ++i) {
-        __m128i a = _mm_xor_si128(acc[i], _mm_srli_epi64(acc[i], 47));
-        a = _mm_xor_si128(a, _mm_load_si128(scramble + i));
-        const __m128i lo = _mm_mul_epu32(a, prime);
-        const __m128i hi = _mm_mul_epu32(_mm_srli_epi64(a, 32), prime);
-        acc[i] = _mm_add_epi64(lo, _mm_slli_epi64(hi, 32));
-      }
-    }
-  }
-  for (int i = 0; i < 4; ++i) _mm_store_si128(reinterpret_cast<__m128i*>(lane_words) + i, acc[i]);
-  return in_block;
-}
-
+#if defined(__x86_64__) && defined(__GNUC__)
 __attribute__((target("avx2"))) size_t consume_avx2(uint64_t* lane_words, const unsigned char* p, size_t count,
                                                    size_t in_block) {
   __m256i acc[2];
@@ -128,7 +99,7 @@ __attribute__((target("avx2"))) size_t consume_avx2(uint64_t* lane_words, const 
 using Consume = size_t (*)(uint64_t*, const unsigned char*, size_t, size_t);
 Consume pick_consume() {
   __builtin_cpu_init();  // this runs as a static initializer, maybe before libgcc's own
-  return __builtin_cpu_supports("avx2") ? consume_avx2 : consume_sse2;
+  return __builtin_cpu_supports("avx2") ? consume_avx2 : consume_scalar;
 }
 const Consume consume = pick_consume();
 #else

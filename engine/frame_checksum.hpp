@@ -7,8 +7,8 @@
 // each lane adding a data word and the 32×32-bit product of the word xor-ed with a
 // per-stripe key (so equal words at different places sum differently); every 1 KiB
 // the lanes are scrambled (so blocks are order-dependent too); the end mixes the lanes
-// with the length. AVX2 does four lanes an instruction, SSE2 (every x86-64) two, any
-// other target one at a time: the same arithmetic, the same result.
+// with the length. AVX2 does four lanes an instruction; CPUs and targets without it
+// one at a time: the same arithmetic, the same result.
 //
 // Why not XXH64 (used before): it was a tenth of a re-encode's CPU time at 256M.
 // `build/bench/engine_bench --benchmark_filter='Checksum|Xxh64'` on a 1 MiB buffer
