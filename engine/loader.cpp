@@ -1063,6 +1063,21 @@ class Loader {
             [&](const FrameHeader& header, Bytes& records, Lease&) {
               // Records become block records followed by their cells, in one buffer.
               const uint32_t size = mesh_.block_record_size;
+              if (local_size == triangle32_record_size && size == triangle32_record_size && verbatim_triangles()) {
+                // The local records are the block records already (three u32 ids): the
+                // cells go after them, in the room the frame's read left (no new buffer).
+                const uint64_t n = header.count;
+                records.resize(n * (size + sizeof(uint32_t)));
+                const std::byte* ids_at = records.data();
+                auto* cells = reinterpret_cast<uint32_t*>(records.data() + n * size);
+                for (uint64_t i = 0; i < n; ++i, ids_at += size) {
+                  uint32_t ids[3];
+                  std::memcpy(ids, ids_at, sizeof ids);
+                  cells[i] = mesh_.grid.cell_of(
+                      barycenter({position(ids[0] - first), position(ids[1] - first), position(ids[2] - first)}));
+                }
+                return;
+              }
               Bytes out(header.count * (size + sizeof(uint32_t)));
               auto* cells = reinterpret_cast<uint32_t*>(out.data() + header.count * size);
               if (local_size == triangle32_record_size && verbatim_triangles()) {
@@ -1307,6 +1322,9 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
     const std::string where = "frame " + std::to_string(item.ref.file) + "@" + std::to_string(item.ref.offset);
     if (item.ref.bytes < frame_header_bytes) throw Error(ErrorKind::internal, where + ": shorter than its header");
     scratch.read(item.ref.file, item.ref.offset, item.header_bytes.data(), frame_header_bytes);
+    // Room for what transform makes of the records (the lease covers it), so that it
+    // can write them in place rather than into a new buffer.
+    item.records.reserve(item.ref.bytes - frame_header_bytes + item.ref.count * out_record_size);
     item.records.resize(item.ref.bytes - frame_header_bytes);
     scratch.read(item.ref.file, item.ref.offset + frame_header_bytes, item.records.data(), item.records.size());
     job.stage(stage).bytes_read += item.ref.bytes;

@@ -1,5 +1,7 @@
 #include "engine/reencode.hpp"
 
+#include <algorithm>
+#include <bit>
 #include <cstring>
 
 #include "engine/process_memory.hpp"
@@ -108,6 +110,28 @@ uint64_t encode_block_triangles(const std::byte* records, uint64_t count, uint32
     io::encode_ply_triangles(reinterpret_cast<const Triangle*>(records), count, out, max_index);
   }
   return max_index;
+}
+
+// u32 triangle records (12 bytes) to PLY face records (13 bytes) in the same buffer,
+// which has room for them: backwards, so that each record is read before anything
+// is written over it (record i goes to 13i, at or after where it was, 12i). Returns the
+// largest index.
+uint64_t encode_triangle32_records_in_place(std::byte* bytes, uint64_t count) {
+  static_assert(std::endian::native == std::endian::little);  // as the PLY writer's own encode
+  uint32_t largest = 0;
+  for (uint64_t i = count; i-- > 0;) {
+    uint32_t abc[3];
+    std::memcpy(abc, bytes + i * triangle32_record_size, sizeof abc);
+    largest = std::max({largest, abc[0], abc[1], abc[2]});
+    // "3 a b c" as two overlapping 8-byte stores: bytes 0-7 (3, a, b's low three
+    // bytes), then bytes 5-12 (b, c).
+    const uint64_t head = 3 | uint64_t(abc[0]) << 8 | uint64_t(abc[1]) << 40;
+    const uint64_t tail = uint64_t(abc[1]) | uint64_t(abc[2]) << 32;
+    std::byte* out = bytes + i * io::ply_triangle_bytes;
+    std::memcpy(out, &head, sizeof head);
+    std::memcpy(out + 5, &tail, sizeof tail);
+  }
+  return largest;
 }
 
 // Writes every vertex, in index order, through the I/O thread.
@@ -235,6 +259,13 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
   for_each_frame(
       job, scratch, "write", "block frames", frames, mesh.block_record_size,
       [&mesh, encode](const FrameHeader& header, Bytes& records, Lease&) {
+        if (encode && mesh.block_record_size == triangle32_record_size) {
+          // In place: the frame's read left room for the PLY records (out_record_size).
+          records.resize(header.count * io::ply_triangle_bytes + sizeof(uint64_t));
+          const uint64_t max_index = encode_triangle32_records_in_place(records.data(), header.count);
+          std::memcpy(records.data() + header.count * io::ply_triangle_bytes, &max_index, sizeof max_index);
+          return;
+        }
         if (encode) {
           Bytes out(header.count * io::ply_triangle_bytes + sizeof(uint64_t));
           uint64_t max_index = encode_block_triangles(records.data(), header.count, mesh.block_record_size,
