@@ -108,6 +108,9 @@ struct VertexStore {
   uint64_t count = 0;
   uint64_t window = 0;
   std::vector<Point> resident;                   // all of them, when resident
+  // Or, when resident for the re-encode (triangle-only load of an input that declares
+  // float coordinates), all of them as xyz floats, and `resident` stays empty.
+  UninitializedVector<float> resident_xyz;
   std::vector<std::vector<FrameRef>> windows;    // else frames per window (tag = first index; float or Point records)
   bool is_resident() const { return windows.empty(); }
 };

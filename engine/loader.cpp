@@ -184,6 +184,7 @@ struct InputStream {
     reader.reset();
   }
   const io::MeshInfo& info() const { return bulk ? bulk->info() : reader->info(); }
+  bool float_coordinates() const { return bulk && bulk->float_coordinates(); }
   uint64_t bytes_read() const { return bulk ? bulk->bytes_read() : reader->bytes_read(); }
   bool read(InputItem& item, Lease& lease) {
     size_t elements = std::max<uint64_t>(lease.bytes() / bytes_per_input_element, 64);
@@ -614,9 +615,18 @@ class Loader {
   // All vertex positions in memory; faces resolved as they stream by.
   void load_resident(uint64_t vertex_count, uint64_t polygon_count) {
     progress_span_ = options_.degrees ? 0.4 : 0.8;
-    Lease vertex_lease = take("vertex positions", vertex_count * sizeof(Point));
+    // The re-encode of an input with float coordinates keeps them as floats: half the
+    // memory the face lookups wander over, and the output's vertices as they are.
+    // (Whether to stay resident is decided on Points all the same.)
+    const bool floats = verbatim_triangles() && input_.float_coordinates();
+    Lease vertex_lease = take("vertex positions", vertex_count * (floats ? 3 * sizeof(float) : sizeof(Point)));
     auto& positions = mesh_.vertices.resident;
-    positions.resize(vertex_count);
+    auto& xyz = mesh_.vertices.resident_xyz;
+    if (floats) {
+      xyz.resize(3 * vertex_count);
+    } else {
+      positions.resize(vertex_count);
+    }
     mesh_.vertices.count = vertex_count;
     mesh_.vertices.window = std::max<uint64_t>(vertex_count, 1);
     mesh_.vertex_count = vertex_count;
@@ -635,7 +645,13 @@ class Loader {
         throw_bad_input(input_.path.string(), "vertex " + std::to_string(batch.first_vertex),
                         "more vertices than the header declares");
       }
-      std::copy(batch.vertices.begin(), batch.vertices.end(), positions.begin() + int64_t(batch.first_vertex));
+      if (floats) {
+        float* at = xyz.data() + 3 * batch.first_vertex;
+        for (const Point& p : batch.vertices)
+          for (int k = 0; k < 3; ++k) *at++ = float(p[k]);
+      } else {
+        std::copy(batch.vertices.begin(), batch.vertices.end(), positions.begin() + int64_t(batch.first_vertex));
+      }
       for (const Point& p : batch.vertices) item.box.add(p);
     };
     vertex_pass.sink = [&](InputItem& item, Lease&) {
@@ -681,8 +697,14 @@ class Loader {
           for (uint64_t v : t) {
             if (v >= vertex_count) index_out_of_range(input_.path, batch.first_triangle + i, v, vertex_count);
           }
-          item.cells[i] = triangle_record(t, positions[t[0]], positions[t[1]], positions[t[2]],
-                                          item.block_records.data() + i * mesh_.block_record_size);
+          if (floats) {
+            auto at = [&](uint64_t v) { return Point{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
+            item.cells[i] = triangle_record(t, at(t[0]), at(t[1]), at(t[2]),
+                                            item.block_records.data() + i * mesh_.block_record_size);
+          } else {
+            item.cells[i] = triangle_record(t, positions[t[0]], positions[t[1]], positions[t[2]],
+                                            item.block_records.data() + i * mesh_.block_record_size);
+          }
         }
         return;
       }
@@ -1346,6 +1368,13 @@ void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& stor
   uint64_t first = window * store.window;
   if (store.is_resident()) {
     uint64_t n = std::min<uint64_t>(store.window, store.count - first);
+    if (!store.resident_xyz.empty()) {
+      for (uint64_t i = 0; i < n; ++i) {
+        const float* p = store.resident_xyz.data() + 3 * (first + i);
+        out[i] = {p[0], p[1], p[2]};
+      }
+      return;
+    }
     std::copy(store.resident.begin() + first, store.resident.begin() + first + n, out);
     return;
   }

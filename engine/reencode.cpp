@@ -140,7 +140,11 @@ void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io:
   const VertexStore& store = mesh.vertices;
   if (mesh.vertices_delivered) return;  // written by the loader's dereference
   if (store.is_resident()) {
-    submit_vertices(job, writer, store.resident.data(), store.count);
+    if (!store.resident_xyz.empty()) {
+      submit_float_vertices(job, writer, store.resident_xyz.data(), store.count);
+    } else {
+      submit_vertices(job, writer, store.resident.data(), store.count);
+    }
     job.io().drain();
     job.check();
     return;
@@ -395,6 +399,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     const bool blocks_in_memory = mesh.blocks_resident();
     write_vertices(job, scratch, mesh, *writer);
     mesh.vertices.resident = {};
+    mesh.vertices.resident_xyz = {};
     mesh.resident_lease.release();
     uint64_t faces = write_triangles(job, scratch, mesh, *writer);
     if (faces != mesh.face_count) {

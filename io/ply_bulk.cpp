@@ -274,6 +274,12 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, MeshBatch& batch) {
   finish();
 }
 
+bool PlyBulkReader::float_coordinates() const {
+  const VertexLayout layout = vertex_layout(header_);
+  return layout.types[0] == PlyType::float32 && layout.types[1] == PlyType::float32 &&
+         layout.types[2] == PlyType::float32;
+}
+
 std::unique_ptr<PlyBulkReader> open_ply_bulk_reader(const std::filesystem::path& path) {
   MeshFileKind kind = mesh_file_kind(path);
   if (kind.obj || kind.zstd) return nullptr;

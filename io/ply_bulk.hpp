@@ -56,6 +56,8 @@ class PlyBulkReader {
 
   const MeshInfo& info() const { return info_; }
   const std::string& name() const { return name_; }
+  // True when x, y and z are all declared float: every coordinate is a float exactly.
+  bool float_coordinates() const;
 
   // ---- I/O thread ----
   // The next range, about `max_bytes` (whole vertex records; at least one record).

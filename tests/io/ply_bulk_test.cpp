@@ -133,6 +133,16 @@ TEST(PlyBulk, DecodesEveryLayoutLikeTheStreamingReaderWhereverRangesEnd) {
   }
 }
 
+// The re-encode keeps vertices as floats when the header declares x, y, z float.
+TEST(PlyBulk, FloatCoordinatesOnlyWhenXYAndZAreDeclaredFloat) {
+  TempDir dir;
+  for (const Layout& layout : layouts()) {
+    auto path = dir / "m.ply";
+    testing::write_bytes(path, make_ply(layout));
+    EXPECT_EQ(open_ply_bulk_reader(path)->float_coordinates(), layout.coordinate == "float") << layout.coordinate;
+  }
+}
+
 TEST(PlyBulk, OnlyPlainBinaryPlyWithVerticesThenFaces) {
   TempDir dir;
   IndexedMesh mesh = testing::small_mesh();
