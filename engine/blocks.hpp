@@ -189,12 +189,15 @@ LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesyst
 // then `sink` (optional) one at a time, in any order (in frame order, both one at a
 // time, when `ordered`). `records` holds header.count decoded records;
 // each item's lease covers the encoded frame, the records, and `out_record_size`
-// bytes per record for what transform makes of them.
+// bytes per record for what transform makes of them. With `in_place`, the records
+// buffer is read with room for header.count × out_record_size bytes, so that the
+// transform can grow it to that (resize) and write there rather than into a new
+// buffer; leave it off when transform makes a new one (the room would go unused).
 using FrameUse = std::function<void(const FrameHeader&, Bytes& records, Lease& lease)>;
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size,
                     const FrameUse& transform, const FrameUse& sink, uint32_t out_record_size,
-                    bool ordered = false);
+                    bool ordered = false, bool in_place = false);
 
 // Loads vertices [window * store.window, +store.window) into `out` (resident or not).
 void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& store, uint64_t window,

@@ -1080,12 +1080,16 @@ class Loader {
         handed_out = true;
       }
       if (has_local) {
+        // u32 local records that are the block records already: only their cells are
+        // made, in place (4 bytes a record); else block records and cells, anew.
+        const bool cells_in_place = local_size == triangle32_record_size &&
+                                    mesh_.block_record_size == triangle32_record_size && verbatim_triangles();
         for_each_frame(
             job_, scratch_, "resolve", "local face frames", local.frames(c), local_size,
             [&](const FrameHeader& header, Bytes& records, Lease&) {
               // Records become block records followed by their cells, in one buffer.
               const uint32_t size = mesh_.block_record_size;
-              if (local_size == triangle32_record_size && size == triangle32_record_size && verbatim_triangles()) {
+              if (cells_in_place) {
                 // The local records are the block records already (three u32 ids): the
                 // cells go after them, in the room the frame's read left (no new buffer).
                 const uint64_t n = header.count;
@@ -1132,7 +1136,8 @@ class Loader {
               const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * mesh_.block_record_size);
               mesh_.dropped_faces += add_record_runs(blocks, records.data(), cells, header.count);
             },
-            sizeof(BlockFace) + sizeof(uint32_t));
+            cells_in_place ? triangle32_record_size + sizeof(uint32_t) : sizeof(BlockFace) + sizeof(uint32_t), false,
+            cells_in_place);
       }
       if (has_corners) {
         for_each_frame(
@@ -1317,7 +1322,7 @@ BlockGrid BlockGrid::around(const Point& min, const Point& max, uint32_t blocks)
 
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size, const FrameUse& transform,
-                    const FrameUse& sink, uint32_t out_record_size, bool ordered) {
+                    const FrameUse& sink, uint32_t out_record_size, bool ordered, bool in_place) {
   // The header and the payload are read apart, so that a raw payload is the records
   // themselves: no copy between the disk's bytes and the transform.
   struct FrameItem {
@@ -1346,7 +1351,7 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
     scratch.read(item.ref.file, item.ref.offset, item.header_bytes.data(), frame_header_bytes);
     // Room for what transform makes of the records (the lease covers it), so that it
     // can write them in place rather than into a new buffer.
-    item.records.reserve(item.ref.bytes - frame_header_bytes + item.ref.count * out_record_size);
+    if (in_place) item.records.reserve(std::max(item.ref.bytes - frame_header_bytes, item.ref.count * out_record_size));
     item.records.resize(item.ref.bytes - frame_header_bytes);
     scratch.read(item.ref.file, item.ref.offset + frame_header_bytes, item.records.data(), item.records.size());
     job.stage(stage).bytes_read += item.ref.bytes;

@@ -316,7 +316,8 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
         written += n;
         job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
       },
-      encode ? uint32_t(io::ply_triangle_bytes) : is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0);
+      encode ? uint32_t(io::ply_triangle_bytes) + 1 : is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0,
+      false, encode && mesh.block_record_size == triangle32_record_size);
   job.io().drain();
   job.check();
   return written;
