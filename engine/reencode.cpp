@@ -101,37 +101,37 @@ void submit_encoded_triangles(Job& job, io::MeshWriter& writer, Buffer bytes, ui
       job.error_handler(), count * io::ply_triangle_bytes);
 }
 
-// Block records (u32 or u64 triangle records) as PLY face records at `out`.
-uint64_t encode_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, char* out) {
-  uint64_t max_index = 0;
-  if (record_size == triangle32_record_size) {
-    io::encode_ply_triangles(reinterpret_cast<const uint32_t*>(records), count, out, max_index);
-  } else {
-    io::encode_ply_triangles(reinterpret_cast<const Triangle*>(records), count, out, max_index);
-  }
-  return max_index;
-}
-
-// u32 triangle records (12 bytes) to PLY face records (13 bytes) in the same buffer,
-// which has room for them: backwards, so that each record is read before anything
-// is written over it (record i goes to 13i, at or after where it was, 12i). Returns the
-// largest index.
-uint64_t encode_triangle32_records_in_place(std::byte* bytes, uint64_t count) {
+// u32 triangle records (12 bytes) to PLY face records (13 bytes, io::encode_ply_triangles'
+// bytes) at `out`, which may be `records` itself when it has room: backwards, so that
+// each record is read before anything is written over it (record i goes to 13i, at or
+// after where it was, 12i). Returns the largest index.
+uint64_t encode_triangle32_records(const std::byte* records, uint64_t count, std::byte* out) {
   static_assert(std::endian::native == std::endian::little);  // as the PLY writer's own encode
   uint32_t largest = 0;
   for (uint64_t i = count; i-- > 0;) {
     uint32_t abc[3];
-    std::memcpy(abc, bytes + i * triangle32_record_size, sizeof abc);
+    std::memcpy(abc, records + i * triangle32_record_size, sizeof abc);
     largest = std::max({largest, abc[0], abc[1], abc[2]});
     // "3 a b c" as two overlapping 8-byte stores: bytes 0-7 (3, a, b's low three
     // bytes), then bytes 5-12 (b, c).
     const uint64_t head = 3 | uint64_t(abc[0]) << 8 | uint64_t(abc[1]) << 40;
     const uint64_t tail = uint64_t(abc[1]) | uint64_t(abc[2]) << 32;
-    std::byte* out = bytes + i * io::ply_triangle_bytes;
-    std::memcpy(out, &head, sizeof head);
-    std::memcpy(out + 5, &tail, sizeof tail);
+    std::byte* at = out + i * io::ply_triangle_bytes;
+    std::memcpy(at, &head, sizeof head);
+    std::memcpy(at + 5, &tail, sizeof tail);
   }
   return largest;
+}
+
+// Block records (u32 or u64 triangle records) as PLY face records at `out`.
+uint64_t encode_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, char* out) {
+  uint64_t max_index = 0;
+  if (record_size == triangle32_record_size) {
+    max_index = encode_triangle32_records(records, count, reinterpret_cast<std::byte*>(out));
+  } else {
+    io::encode_ply_triangles(reinterpret_cast<const Triangle*>(records), count, out, max_index);
+  }
+  return max_index;
 }
 
 // Writes every vertex, in index order, through the I/O thread.
@@ -266,7 +266,7 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
         if (encode && mesh.block_record_size == triangle32_record_size) {
           // In place: the frame's read left room for the PLY records (out_record_size).
           records.resize(header.count * io::ply_triangle_bytes + sizeof(uint64_t));
-          const uint64_t max_index = encode_triangle32_records_in_place(records.data(), header.count);
+          const uint64_t max_index = encode_triangle32_records(records.data(), header.count, records.data());
           std::memcpy(records.data() + header.count * io::ply_triangle_bytes, &max_index, sizeof max_index);
           return;
         }
