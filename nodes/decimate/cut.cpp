@@ -115,4 +115,23 @@ std::optional<RoundCut> exact_cut(std::span<const std::span<const Candidate>> li
   return single;
 }
 
+std::vector<Candidate> exact_cut_share(std::vector<Candidate> sorted, uint64_t needed) {
+  uint64_t removed = 0;
+  size_t keep = 0;
+  while (keep < sorted.size() && removed + sorted[keep].faces_removed <= needed)
+    removed += sorted[keep++].faces_removed;
+  if (keep == sorted.size()) return sorted;
+  // The candidate that ends the prefix stays: without it, a single-face candidate
+  // further on would look like the next in order, and a cut at its key would take
+  // every candidate before it.
+  size_t size = keep + 1;
+  if (sorted[keep].faces_removed != 1) {
+    const auto single = std::find_if(sorted.begin() + ptrdiff_t(size), sorted.end(),
+                                     [](const Candidate& c) { return c.faces_removed == 1; });
+    if (single != sorted.end()) sorted[size++] = *single;
+  }
+  sorted.resize(size);
+  return sorted;
+}
+
 }  // namespace qemflow::nodes

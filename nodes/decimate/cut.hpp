@@ -67,4 +67,11 @@ DecimateParams relaxed_params(const DecimateParams& params);
 std::optional<RoundCut> exact_cut(std::span<const std::span<const Candidate>> sorted_lists,
                                   uint64_t needed);
 
+// What of one patch's sorted candidate list an exact cut can use, so a patch sends
+// only that: the prefix removing at most `needed` faces, the candidate after it (the
+// merge stops there at the latest, since the other patches only add to what is taken
+// before it), and the cheapest single-face candidate after that (the fallback).
+// exact_cut of every patch's share equals exact_cut of the whole lists.
+std::vector<Candidate> exact_cut_share(std::vector<Candidate> sorted, uint64_t needed);
+
 }  // namespace qemflow::nodes

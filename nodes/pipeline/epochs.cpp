@@ -911,23 +911,6 @@ void run_patch_plan(PatchDecimator& d, const PatchPlan& plan, PhaseClock& clock,
   }
 }
 
-// Candidates kept for an exact cut: the prefix removing at most `needed` faces and the
-// cheapest single-face candidate (all exact_cut can use from this list).
-std::vector<Candidate> trim_for_exact_cut(std::vector<Candidate> owned, uint64_t needed) {
-  uint64_t removed = 0;
-  size_t keep = 0;
-  while (keep < owned.size() && removed + owned[keep].faces_removed <= needed) removed += owned[keep++].faces_removed;
-  std::optional<Candidate> single;
-  for (size_t i = keep; i < owned.size(); ++i)
-    if (owned[i].faces_removed == 1) {
-      single = owned[i];
-      break;
-    }
-  owned.resize(keep);
-  if (single) owned.push_back(*single);
-  return owned;
-}
-
 struct Runner {
   Job& job;
   ScratchStore& scratch;
@@ -1039,7 +1022,7 @@ struct Runner {
         // Without rounds the summary's prepare is the first.
         if (plan.cuts.empty()) stats.first_round_refreshes += d.refreshes();
         summary = d.summarize();
-        if (candidates) owned = trim_for_exact_cut(d.owned_candidates(), needed);
+        if (candidates) owned = exact_cut_share(d.owned_candidates(), needed);
         clock.charge(kSummary);
         if (summary.inexact_candidates) {
           ok = false;

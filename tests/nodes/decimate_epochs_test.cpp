@@ -13,6 +13,7 @@
 #include <set>
 #include <span>
 
+#include "nodes/decimate/cut.hpp"
 #include "nodes/decimate/simplify.hpp"
 #include "tests/nodes/mesh_fixtures.hpp"
 
@@ -446,6 +447,48 @@ TEST(DecimateEpochs, PlanEpochRisingCutsAndEndGame) {
   EXPECT_EQ(plan_epoch(none, 1000, 100, false, o).kind, EpochPlan::Kind::relax);
   EXPECT_EQ(plan_epoch(none, 1000, 100, true, o).kind, EpochPlan::Kind::stop);
   EXPECT_EQ(plan_epoch(s, 100, 100, false, o).kind, EpochPlan::Kind::stop);
+}
+
+// Out of core, each patch sends exact_cut only its share of its candidates; the cut
+// must be the one the whole lists give. The hand-made case is the end game that broke
+// out of core (one face to go, a two-face candidate first): a share without the
+// two-face candidate made the single-face one look next in order, and the cut at its
+// key took every candidate before it.
+TEST(DecimateEpochs, ExactCutOfThePatchesSharesIsTheExactCutOfTheirWholeLists) {
+  auto candidate = [](double cost, uint64_t gid, uint32_t faces) {
+    Candidate c;
+    c.key = EdgeKey::of(cost, gid, gid + 1);
+    c.faces_removed = faces;
+    return c;
+  };
+  auto cut_of = [](const std::vector<std::vector<Candidate>>& lists, uint64_t needed) {
+    const std::vector<std::span<const Candidate>> spans(lists.begin(), lists.end());
+    return exact_cut(spans, needed);
+  };
+  auto same = [](const std::optional<RoundCut>& a, const std::optional<RoundCut>& b) {
+    if (a.has_value() != b.has_value()) return false;
+    return !a || (!(a->key < b->key) && !(b->key < a->key) && a->single_face_only == b->single_face_only);
+  };
+  const std::vector<std::vector<Candidate>> end_game = {{candidate(1.0, 10, 2), candidate(2.0, 20, 1)}};
+  const auto whole = cut_of(end_game, 1);
+  ASSERT_TRUE(whole.has_value());
+  EXPECT_TRUE(whole->single_face_only);
+  EXPECT_TRUE(same(cut_of({exact_cut_share(end_game[0], 1)}, 1), whole));
+
+  uint64_t state = 12345;
+  auto next = [&] { return state = state * 6364136223846793005ull + 1442695040888963407ull; };
+  for (int trial = 0; trial < 2000; ++trial) {
+    std::vector<std::vector<Candidate>> lists(1 + next() % 4), shares;
+    uint64_t gid = 0;
+    for (auto& list : lists) {
+      for (uint64_t n = next() % 12; n > 0; --n)
+        list.push_back(candidate(double(next() % 64), gid += 2, next() % 4 == 0 ? 1 : 2));
+      std::sort(list.begin(), list.end(), [](const Candidate& a, const Candidate& b) { return a.key < b.key; });
+    }
+    const uint64_t needed = 1 + next() % 30;
+    for (const auto& list : lists) shares.push_back(exact_cut_share(list, needed));
+    ASSERT_TRUE(same(cut_of(shares, needed), cut_of(lists, needed))) << "trial " << trial;
+  }
 }
 
 TEST(DecimateEpochs, TwoPatchSimulationEqualsInCoreBitForBit) {
