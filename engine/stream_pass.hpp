@@ -2,7 +2,7 @@
 // A stream pass: the flow-graph shape every pipeline stage of qemflow is built from.
 //
 //   read (I/O thread) ──► [sequencer ──► decode (compute, serial, in order)] ──► transform (compute,
-//   concurrent) ──► sink (compute, serial)
+//   concurrent) ──► sequencer ──► sink (compute, serial, in order)
 //
 // Node contract
 // - read(item, lease): runs on the dedicated I/O thread, one call at a time, in order.
@@ -26,8 +26,11 @@
 // - transform(item): runs on compute threads, up to transform_concurrency at once, in
 //   any order unless `ordered` (then one at a time in read order, via sequencer_node).
 //   Decompression and format conversion belong here.
-// - sink(item): runs on compute threads, one at a time, in no particular order (read
-//   order when `ordered`). State that many items update (a spill, an output cursor) lives here.
+// - sink(item): runs on compute threads, one at a time, in read order (a sequencer
+//   behind the concurrent transforms), so state that many items update (a spill, an
+//   output cursor) ends the same on every run: records filed in the same order, output
+//   bytes the same (DESIGN.md §3, guarantee 1). Items that finish early wait there with
+//   their leases, so memory still bounds how far the pass runs ahead.
 // - No node body may wait for memory: a stage takes its working set (spill buffers,
 //   windows) before the pass, from one reservation (Lease::split), so no job ever holds
 //   part of its memory while waiting for more and jobs sharing a governor cannot
@@ -178,10 +181,12 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
           if (pass.ordered) consume(msg);
           return msg;
         });
-    flow::function_node<Msg, flow::continue_msg> sink(graph, flow::serial, [&](const Msg& msg) {
+    // Rejecting, like decode below: it pulls the next item in read order when it is free.
+    flow::function_node<Msg, flow::continue_msg, flow::rejecting> sink(graph, flow::serial, [&](const Msg& msg) {
       consume(msg);
       return flow::continue_msg();
     });
+    flow::sequencer_node<Msg> sink_order(graph, [](const Msg& msg) { return size_t(msg->seq); });
     flow::sequencer_node<Msg> sequencer(graph, [](const Msg& msg) { return size_t(msg->seq); });
     // The decode node rejects while busy, so it pulls the sequencer's next item only
     // when it is free: strictly one at a time, in read order.
@@ -196,10 +201,12 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
       flow::make_edge(source, sequencer);
       flow::make_edge(sequencer, decode);
       flow::make_edge(decode, transform);
-      flow::make_edge(transform, sink);
+      flow::make_edge(transform, sink_order);
+      flow::make_edge(sink_order, sink);
     } else {
       flow::make_edge(source, transform);
-      flow::make_edge(transform, sink);
+      flow::make_edge(transform, sink_order);
+      flow::make_edge(sink_order, sink);
     }
     source.try_put(flow::continue_msg());
     graph.wait_for_all();
