@@ -10,7 +10,7 @@ cd "$(dirname "$0")"
 PACKAGES=(build-essential cmake ninja-build pkg-config zstd
   libtbb-dev libeigen3-dev libsvm-dev libzstd-dev libopenmesh-dev
   libbenchmark-dev libgtest-dev libgmock-dev
-  libcli11-dev nlohmann-json3-dev libtomlplusplus-dev
+  libcli11-dev nlohmann-json3-dev libtomlplusplus-dev libxxhash-dev
   libmeshoptimizer-dev python3-matplotlib)
 
 missing=()

@@ -16,7 +16,7 @@
 #include <random>
 
 #include "config/size.hpp"
-#include "engine/frame_checksum.hpp"
+#include "io/hash64.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -24,8 +24,8 @@ namespace qemflow::engine {
 namespace {
 
 constexpr char magic[4] = {'Q', 'F', 'C', 'K'};
-// Version 2: the raw payload's trailer is frame_checksum (version 1 had XXH64).
-constexpr uint16_t frame_version = 2;
+// Version 3: the raw payload's trailer is XXH3 (version 1 had XXH64, 2 a hand-written XXH3-like sum).
+constexpr uint16_t frame_version = 3;
 constexpr uint32_t flag_raw = 1;
 
 // The default codec: the base, or the newest live DefaultFrameCodec's. Read on every
@@ -143,7 +143,7 @@ size_t frame_bound(size_t raw_bytes) {
 }
 
 uint64_t checksum_of_pieces(const std::vector<Piece>& pieces) {
-  FrameChecksum sum;
+  io::Xxh3Stream sum;
   for (const Piece& piece : pieces) sum.add(piece.data, piece.bytes);
   return sum.finish();
 }
@@ -190,7 +190,7 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
       at += piece.bytes;
     }
     if (at != raw) throw Error(ErrorKind::internal, "encode_frame: pieces do not add up to the count");
-    put<uint64_t>(payload + raw, frame_checksum(payload, raw));
+    put<uint64_t>(payload + raw, io::xxh3(payload, raw));
     write_header(frame.data(), tag, record_size, count, raw + sizeof(uint64_t), flag_raw);
     return frame;
   }
@@ -255,7 +255,7 @@ FrameHeader decode_frame_payload(const std::byte* header_bytes, Bytes& payload, 
   FrameHeader header = check_header(header_bytes, payload.size(), record_size, max_records, where);
   const size_t raw = header.count * record_size;
   if (header.raw) {
-    if (get<uint64_t>(payload.data() + raw) != frame_checksum(payload.data(), raw)) corrupt(where, "payload checksum mismatch");
+    if (get<uint64_t>(payload.data() + raw) != io::xxh3(payload.data(), raw)) corrupt(where, "payload checksum mismatch");
     payload.resize(raw);  // the records are the payload: no copy
     return header;
   }
@@ -274,7 +274,7 @@ FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t reco
   size_t raw = header.count * record_size;
   if (header.raw) {
     const std::byte* payload = frame + frame_header_bytes;
-    if (get<uint64_t>(payload + raw) != frame_checksum(payload, raw)) corrupt(where, "payload checksum mismatch");
+    if (get<uint64_t>(payload + raw) != io::xxh3(payload, raw)) corrupt(where, "payload checksum mismatch");
     std::memcpy(out, payload, raw);
     return header;
   }

@@ -3,14 +3,14 @@
 // system temp dir) that lives exactly as long as the job. Each file is a sequence of
 // frames; a frame is one self-contained chunk of records:
 //
-//   header (48 bytes, little-endian): magic "QFCK", version u16 = 2, record size u16,
+//   header (48 bytes, little-endian): magic "QFCK", version u16 = 3, record size u16,
 //     flags u32 (bit 0: raw payload), tag u64 (what the frame holds, e.g. its first
 //     vertex index), record count u64, payload bytes u64, header checksum u64 (FNV-1a
 //     of the above)
 //   payload, zstd codec: one zstd frame (fast level, content checksum on) of
 //     count × record size
 //   payload, raw codec: the count × record size bytes themselves, then their
-//     frame_checksum (u64, engine/frame_checksum.hpp), so corruption is still caught
+//     XXH3 (u64, io/hash64.hpp), so corruption is still caught
 //
 // Which codec: a scratch disk writes and reads raw bytes faster than one core
 // compresses them (zstd -1 ~ 400 MB/s per core, the checksum ~ 20 GB/s), so raw is the
@@ -124,7 +124,7 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
 // A raw frame without copying its records: the header and the checksum trailer to
 // write around the pieces (e.g. with ScratchStore::append_pieces), so that spilled
 // pages go to the disk as they are. Same bytes as encode_frame with the raw codec.
-// frame_checksum of the pieces laid end to end (without joining them).
+// XXH3 of the pieces laid end to end (without joining them).
 uint64_t checksum_of_pieces(const std::vector<Piece>& pieces);
 struct RawFrameEnvelope {
   std::array<std::byte, frame_header_bytes> header;

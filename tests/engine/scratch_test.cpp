@@ -8,7 +8,7 @@
 #include <numeric>
 
 #include "test_support.hpp"
-#include "engine/frame_checksum.hpp"
+#include "io/hash64.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -121,9 +121,9 @@ TEST(Frame, ARawFrameWrittenFromPiecesIsTheSameBytes) {
       pieces.push_back({bytes.data() + at, std::min(cut, bytes.size() - at)});
       if (at == 0) pieces.push_back({bytes.data(), 0});
     }
-    EXPECT_EQ(checksum_of_pieces(pieces), frame_checksum(bytes.data(), bytes.size())) << cut;
+    EXPECT_EQ(checksum_of_pieces(pieces), io::xxh3(bytes.data(), bytes.size())) << cut;
   }
-  for (size_t n : {0, 5, 31, 32, 64, 99}) EXPECT_EQ(checksum_of_pieces({{bytes.data(), n}}), frame_checksum(bytes.data(), n)) << n;
+  for (size_t n : {0, 5, 31, 32, 64, 99}) EXPECT_EQ(checksum_of_pieces({{bytes.data(), n}}), io::xxh3(bytes.data(), n)) << n;
   std::vector<Piece> pieces{{bytes.data(), 40'000}, {bytes.data() + 40'000, 60'000}};
   Bytes frame = encode_frame(3, 4, pieces, 25'000, FrameCodec::uncompressed());
   RawFrameEnvelope envelope = raw_frame_envelope(3, 4, pieces, 25'000);
@@ -237,52 +237,45 @@ TEST(ScratchStore, MissingOrReadOnlyDirectoryIsAResourceError) {
 }
 
 
-// The raw frames' checksum must catch what a torn or corrupted write does: any flipped
-// bit, bytes moved around (whole stripes and whole 1 KiB blocks), a frame cut short
-// or padded with zeros.
-TEST(FrameChecksumTest, CatchesFlipsMovesAndLengthChanges) {
+// The raw frames' checksum (XXH3) must catch what a torn or corrupted write does: any
+// flipped bit, bytes moved around (whole stripes and whole 1 KiB blocks), a frame cut
+// short or padded with zeros. It is libxxhash's XXH3 (the published value of "").
+TEST(RawFrameChecksum, CatchesFlipsMovesAndLengthChanges) {
   std::vector<uint8_t> bytes(5000);
   for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 2654435761u >> 11);
-  const uint64_t good = frame_checksum(bytes.data(), bytes.size());
-  EXPECT_EQ(frame_checksum(bytes.data(), bytes.size()), good);
+  EXPECT_EQ(io::xxh3("", 0), 0x2D06800538D394C2ull);
+  const uint64_t good = io::xxh3(bytes.data(), bytes.size());
+  EXPECT_EQ(io::xxh3(bytes.data(), bytes.size()), good);
   for (size_t at = 0; at < bytes.size(); at += 7) {
     for (int bit : {0, 5, 7}) {
       bytes[at] ^= uint8_t(1 << bit);
-      EXPECT_NE(frame_checksum(bytes.data(), bytes.size()), good) << at << " bit " << bit;
+      EXPECT_NE(io::xxh3(bytes.data(), bytes.size()), good) << at << " bit " << bit;
       bytes[at] ^= uint8_t(1 << bit);
     }
   }
   auto swapped = [&](size_t a, size_t b, size_t n) {
     std::vector<uint8_t> copy = bytes;
     std::swap_ranges(copy.begin() + int64_t(a), copy.begin() + int64_t(a + n), copy.begin() + int64_t(b));
-    return frame_checksum(copy.data(), copy.size());
+    return io::xxh3(copy.data(), copy.size());
   };
   EXPECT_NE(swapped(0, 64, 64), good);      // two stripes of one block
   EXPECT_NE(swapped(0, 1024, 1024), good);  // two blocks
   EXPECT_NE(swapped(8, 16, 8), good);       // two words of one stripe
-  EXPECT_NE(frame_checksum(bytes.data(), bytes.size() - 1), good);
+  EXPECT_NE(io::xxh3(bytes.data(), bytes.size() - 1), good);
   std::vector<uint8_t> padded = bytes;
   padded.push_back(0);
-  EXPECT_NE(frame_checksum(padded.data(), padded.size()), good);
+  EXPECT_NE(io::xxh3(padded.data(), padded.size()), good);
   std::vector<uint8_t> zeros(64, 0);
-  EXPECT_NE(frame_checksum(zeros.data(), 64), frame_checksum(zeros.data(), 63));
-  EXPECT_NE(frame_checksum(zeros.data(), 0), frame_checksum(zeros.data(), 1));
+  EXPECT_NE(io::xxh3(zeros.data(), 64), io::xxh3(zeros.data(), 63));
+  EXPECT_NE(io::xxh3(zeros.data(), 0), io::xxh3(zeros.data(), 1));
 }
 
-TEST(FrameChecksumTest, TheVectorVersionAgreesWithTheOneLaneReference) {
-  std::vector<uint8_t> bytes(70'000);
-  for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 2246822519u >> 13);
-  for (size_t n : {0, 1, 63, 64, 65, 1023, 1024, 1025, 4096, 12'345, 70'000}) {
-    EXPECT_EQ(frame_checksum(bytes.data(), n), frame_checksum_one_lane_at_a_time(bytes.data(), n)) << n;
-  }
-}
-
-TEST(FrameChecksumTest, AnySplitIntoPiecesGivesTheSameSum) {
+TEST(RawFrameChecksum, AnySplitIntoPiecesGivesTheSameSum) {
   std::vector<uint8_t> bytes(20'000);
   for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = uint8_t(i * 40503u >> 7);
-  const uint64_t whole = frame_checksum(bytes.data(), bytes.size());
+  const uint64_t whole = io::xxh3(bytes.data(), bytes.size());
   for (size_t cut : {1, 12, 63, 64, 65, 1000, 1024, 1025, 7777}) {
-    FrameChecksum sum;
+    io::Xxh3Stream sum;
     for (size_t at = 0; at < bytes.size(); at += cut) sum.add(bytes.data() + at, std::min(cut, bytes.size() - at));
     EXPECT_EQ(sum.finish(), whole) << cut;
   }
