@@ -367,8 +367,12 @@ class Loader {
   LoadedMesh run() {
     const auto& info = input_.info();
     mesh_.input_bytes = input_.size;
-    bool resident = info.vertex_count && !options_.force_out_of_core &&
-                    *info.vertex_count * sizeof(Point) <= capacity_ * 6 / 10;
+    // Resident positions and, while they are welded, their sort order (weld_in_memory)
+    // within 6/10 of the reservation, and the block writer's smallest lease beside them.
+    const uint64_t resident_bytes =
+        info.vertex_count.value_or(0) * (sizeof(Point) + (options_.weld ? sizeof(uint64_t) : 0));
+    bool resident = info.vertex_count && !options_.force_out_of_core && resident_bytes <= capacity_ * 6 / 10 &&
+                    resident_bytes + BucketSpill::min_lease_bytes(sizeof(BlockFace)) <= reserve_.bytes();
     if (resident) {
       load_resident(*info.vertex_count, info.polygon_count.value_or(0));
     } else {
@@ -381,9 +385,17 @@ class Loader {
  private:
   // A part of the reservation for `owner`. The loader's fractions of it never add up
   // to more than it holds at once.
+  // A budget that leaves the loader too little is a resource error naming roughly
+  // what would do, not an internal one (the up-front check covers the usual layouts,
+  // not every mesh's).
   Lease take(const char* owner, uint64_t bytes) {
     if (bytes > reserve_.bytes()) {
-      throw Error(ErrorKind::internal, std::string("loader: ") + owner + " does not fit the reservation");
+      const uint64_t budget = job_.governor().budget();
+      throw Error(ErrorKind::resource, std::string("loader: the ") + owner + " need " + config::format_size(bytes) +
+                                           " but --mem-budget " + config::format_size(budget) + " leaves them " +
+                                           config::format_size(reserve_.bytes()) +
+                                           "; this needs a budget of at least about " +
+                                           config::format_size(budget + bytes - reserve_.bytes()));
     }
     return reserve_.split(bytes, job_.owner(owner));
   }
@@ -557,11 +569,11 @@ class Loader {
 
   // Resident weld: indices sorted by (position, index), runs of equal positions map
   // to their first (smallest) index.
-  void weld_in_memory(const std::vector<Point>& positions) {
+  // `order_lease` holds n * 8 bytes, taken before the block writer sized its lease.
+  void weld_in_memory(const std::vector<Point>& positions, Lease order_lease) {
     if (!options_.weld) return;
     StageTimer timer(job_, "weld");
     const uint64_t n = positions.size();
-    Lease order_lease = take("weld order", n * sizeof(uint64_t));
     UninitializedVector<uint64_t> order(n);
     for (uint64_t i = 0; i < n; ++i) order[i] = i;
     job_.arena().execute([&] {
@@ -631,6 +643,7 @@ class Loader {
     mesh_.vertices.window = std::max<uint64_t>(vertex_count, 1);
     mesh_.vertex_count = vertex_count;
     std::unique_ptr<BucketSpill> blocks;
+    Lease weld_order_lease = options_.weld ? take("weld order", vertex_count * sizeof(uint64_t)) : Lease{};
     // Taken before the pass: a sink must never wait for memory that items queued
     // behind it hold.
     Lease block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
@@ -663,7 +676,7 @@ class Loader {
       throw_bad_input(input_.path.string(), "end of vertices",
                       "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");
     }
-    weld_in_memory(positions);
+    weld_in_memory(positions, std::move(weld_order_lease));
     if (options_.degrees) {
       count_degrees_from_input(vertex_count);
       reopen_input_past_vertices();
