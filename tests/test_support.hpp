@@ -4,6 +4,8 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <random>
 #include <string>
 
@@ -20,6 +22,12 @@ inline std::filesystem::path shared_mesh(const std::string& name) {
   } while (0)
 
 inline std::filesystem::path cli_path() { return QEMFLOW_CLI; }
+
+// A file's whole contents (to compare outputs byte for byte).
+inline std::string file_bytes(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
 
 // A fresh directory removed when the object dies.
 class TempDir {

@@ -19,12 +19,7 @@ namespace {
 
 std::string q() { return cli_path().string(); }
 
-std::string slurp(const std::filesystem::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-nlohmann::json read_json(const std::filesystem::path& p) { return nlohmann::json::parse(slurp(p)); }
+nlohmann::json read_json(const std::filesystem::path& p) { return nlohmann::json::parse(file_bytes(p)); }
 
 void run_ok(const std::string& command) {
   std::string out;
@@ -54,7 +49,7 @@ void expect_partition_invariant(const std::filesystem::path& input, const std::s
   TempDir dir;
   run_ok(q() + " simplify " + input.string() + " " + (dir / "in_core.ply").string() + " " + target +
          " --in-core --quiet");
-  const std::string reference = slurp(dir / "in_core.ply");
+  const std::string reference = file_bytes(dir / "in_core.ply");
   ASSERT_GT(reference.size(), 100u);
   for (int c : clusters) {
     SCOPED_TRACE(input.filename().string() + " clusters " + std::to_string(c));
@@ -63,7 +58,7 @@ void expect_partition_invariant(const std::filesystem::path& input, const std::s
     run_ok(q() + " simplify " + input.string() + " " + out.string() + " " + target + " --clusters " +
            std::to_string(c) + " --in-core-faces " + std::to_string(in_core_faces) + " --quiet --scratch " +
            dir.path().string() + " --report " + report.string());
-    EXPECT_TRUE(slurp(out) == reference) << "output differs from --in-core";
+    EXPECT_TRUE(file_bytes(out) == reference) << "output differs from --in-core";
     const auto r = read_json(report);
     EXPECT_EQ(r["patches"].get<int>(), c);
     EXPECT_GT(r["out_of_core_epochs"].get<int>(), 1) << "the run never went out of core";
@@ -91,7 +86,7 @@ TEST(SimplifyOoc, CarriedBestEdgesKeepTheOutputAndSpareFirstRoundRefreshes) {
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() +
          " --target-faces 301 --in-core --quiet");
   auto r = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 1");
-  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply")) << "output differs from --in-core";
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
   EXPECT_GT(r["out_of_core_epochs"].get<uint64_t>(), 10u);
   const uint64_t carried = r["carried_bests"].get<uint64_t>();
   EXPECT_GT(carried, 10 * r["first_round_refreshes"].get<uint64_t>());
@@ -99,14 +94,14 @@ TEST(SimplifyOoc, CarriedBestEdgesKeepTheOutputAndSpareFirstRoundRefreshes) {
   EXPECT_GT(r["in_core_carried_bests"].get<uint64_t>(), 0u);
   // A finish after two passes restores most of its vertices too.
   r = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 11000");
-  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply")) << "output differs from --in-core";
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
   EXPECT_GT(r["in_core_carried_bests"].get<uint64_t>(), r["output_vertices"].get<uint64_t>());
   // Guards this strict run out of candidates at ~4.4k faces and relax out of core; bests
   // found under the strict guards carried past that stall the run there.
   const std::string strict = " --target-faces 300 --min-normal-cos 0.995";
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + strict + " --in-core --quiet");
   r = simplify_with_report(dir, mesh, strict + " --clusters 4 --in-core-faces 1");
-  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply")) << "output differs from --in-core";
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 300u);
 }
 
@@ -118,7 +113,7 @@ TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "plain.ply").string() +
          " --target-faces 301 --in-core --quiet --deviation-weight 0");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "charged.ply").string() + " --target-faces 301 --in-core --quiet");
-  EXPECT_NE(slurp(dir / "plain.ply"), slurp(dir / "charged.ply"));
+  EXPECT_NE(file_bytes(dir / "plain.ply"), file_bytes(dir / "charged.ply"));
   std::string out;
   EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "bad.ply").string() +
                             " --ratio 0.1 --deviation-weight -1 --quiet",
@@ -177,7 +172,7 @@ TEST(SimplifyOoc, SameBytesWithOneThread) {
     run_ok(q() + " simplify " + mesh.string() + " " + (dir / (std::string("t") + threads + ".ply")).string() +
            " --target-faces 301 --clusters 4 --in-core-faces 3000 --threads " + threads + " --quiet --scratch " +
            dir.path().string());
-  EXPECT_TRUE(slurp(dir / "t1.ply") == slurp(dir / "t2.ply"));
+  EXPECT_TRUE(file_bytes(dir / "t1.ply") == file_bytes(dir / "t2.ply"));
 }
 
 TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
@@ -188,7 +183,7 @@ TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
   const auto mesh = generate(dir, "--faces 120000");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.05 --in-core --quiet");
   const auto r = simplify_with_report(dir, mesh, "--ratio 0.05 --mem-budget 64M");
-  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply"));
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply"));
   EXPECT_EQ(r["patches"].get<int>(), 1);
   EXPECT_EQ(r["out_of_core_epochs"].get<int>(), 0);
   EXPECT_EQ(r["in_core_faces"].get<uint64_t>(), 120000u);
@@ -236,7 +231,7 @@ TEST(SimplifyOoc, PatchLargerThanItsLeaseIsSplitAndStaysUnderTheBudget) {
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["governor_peak_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>() - r["baseline_bytes"].get<uint64_t>());
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 110ull << 20);
-  EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply")) << "output differs from --in-core";
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
 }
 
 // The demo's size (scripts/demo.sh: 1M faces under 96M), where a patch once ran past
@@ -314,7 +309,7 @@ TEST(SimplifyOoc, ALoaderShortOfMemoryIsRefusedNamingTheBudget) {
       continue;
     }
     ASSERT_EQ(rc, 0) << out;
-    EXPECT_TRUE(slurp(dir / "out.ply") == slurp(dir / "in_core.ply"));
+    EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply"));
     std::filesystem::remove(dir / "out.ply");
   }
 }

@@ -19,10 +19,7 @@ namespace {
 
 using qemflow::testing::TempDir;
 
-std::string file_bytes(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
+using qemflow::testing::file_bytes;
 
 struct Mode {
   const char* name;

@@ -25,6 +25,7 @@
 namespace qemflow::engine {
 namespace {
 
+using qemflow::testing::file_bytes;
 using qemflow::testing::TempDir;
 
 std::filesystem::path make_mesh(const TempDir& dir, uint64_t faces, const std::string& name = "in.ply") {
@@ -114,11 +115,6 @@ TEST(Reencode, OutOfCoreWithFloatAndDoubleVertexFramesGivesTheSameMesh) {
   auto result = run_reencode(governor, options, {});
   EXPECT_TRUE(result.report["out_of_core_dereference"].get<bool>());
   expect_same_mesh(dir / "mixed.ply", dir / "out.ply");
-}
-
-std::string file_bytes(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
 // DESIGN.md guarantee 1 holds for --ratio 1 too: the same bytes out on every run, with

@@ -16,10 +16,7 @@ using testing::cli_path;
 using testing::run_command;
 using testing::TempDir;
 
-std::string slurp(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
+using testing::file_bytes;
 
 TEST(GenerateToFile, WritesTheGeneratedMeshInEveryFormat) {
   TempDir dir;
@@ -52,9 +49,9 @@ TEST(GenCommand, WritesIdenticalFilesAndPrintsASummary) {
             0)
       << output;
   EXPECT_EQ(output, "");
-  EXPECT_EQ(slurp(dir / "a.ply"), slurp(dir / "b.ply"));
+  EXPECT_EQ(file_bytes(dir / "a.ply"), file_bytes(dir / "b.ply"));
   ASSERT_EQ(run_command(gen + (dir / "c.ply").string() + " --faces 20000 --shape terrain --seed 5 --quiet"), 0);
-  EXPECT_NE(slurp(dir / "a.ply"), slurp(dir / "c.ply"));
+  EXPECT_NE(file_bytes(dir / "a.ply"), file_bytes(dir / "c.ply"));
 }
 
 TEST(GenCommand, RejectsBadArgumentsAsUsageErrorsWithoutOutput) {
