@@ -146,6 +146,27 @@ Point barycenter(const std::array<Point, 3>& p) {
                       std::to_string(count) + " vertices)");
 }
 
+// Out of core, a face whose vertex ids lo <= hi lie in one chunk or two neighbouring
+// ones is *local*: resolved with chunk lo / chunk and the next. Its bucket, or
+// UINT32_MAX for a face that spans farther (hi / chunk <= lo / chunk + 1, with one
+// division instead of two).
+uint32_t local_bucket(uint64_t lo, uint64_t hi, uint64_t chunk) {
+  const uint64_t lo_chunk = lo / chunk;
+  return hi < (lo_chunk + 2) * chunk ? uint32_t(lo_chunk) : UINT32_MAX;
+}
+
+// fn(cell, begin, end) for each run [begin, end) of equal cells: neighbouring faces
+// mostly share a block or bucket, so records are filed a run at a time.
+template <class Fn>
+void for_each_cell_run(const uint32_t* cells, uint64_t count, Fn&& fn) {
+  for (uint64_t i = 0; i < count;) {
+    uint64_t end = i + 1;
+    while (end < count && cells[end] == cells[i]) ++end;
+    fn(cells[i], i, end);
+    i = end;
+  }
+}
+
 uint32_t block_count_for(uint64_t faces, uint64_t faces_per_block) {
   uint64_t blocks = (faces + faces_per_block - 1) / std::max<uint64_t>(faces_per_block, 1);
   return uint32_t(std::clamp<uint64_t>(blocks, 1, 4096));
@@ -467,24 +488,20 @@ class Loader {
   void add_records(Blocks& blocks, const Bytes& records, const std::vector<uint32_t>& cells) {
     add_record_runs(blocks, records.data(), cells.data(), cells.size());
   }
-  // Records with their cells, filed a run of equal cells at a time (neighbouring faces
-  // mostly share a block); UINT32_MAX cells are dropped faces. Returns how many.
+  // Records with their cells, filed a run of equal cells at a time; UINT32_MAX cells
+  // are dropped faces. Returns how many.
   template <class Blocks>
   uint64_t add_record_runs(Blocks& blocks, const std::byte* records, const uint32_t* cells, uint64_t count) {
     const uint32_t size = mesh_.block_record_size;
     uint64_t dropped = 0;
-    for (uint64_t i = 0; i < count;) {
-      const uint32_t cell = cells[i];
-      uint64_t end = i + 1;
-      while (end < count && cells[end] == cell) ++end;
+    for_each_cell_run(cells, count, [&](uint32_t cell, uint64_t begin, uint64_t end) {
       if (cell == UINT32_MAX) {
-        dropped += end - i;
+        dropped += end - begin;
       } else {
-        blocks.add_run(cell, records + i * size, end - i);
-        mesh_.block_faces[cell] += end - i;
+        blocks.add_run(cell, records + begin * size, end - begin);
+        mesh_.block_faces[cell] += end - begin;
       }
-      i = end;
-    }
+    });
     return dropped;
   }
 
@@ -850,9 +867,7 @@ class Loader {
         }
         const uint32_t ids[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
         std::memcpy(item.block_records.data() + i * triangle32_record_size, ids, sizeof ids);
-        // Local when hi / chunk <= lo / chunk + 1 (one division instead of two).
-        const uint64_t lo_chunk = lo / chunk;
-        item.cells[i] = hi < (lo_chunk + 2) * chunk ? uint32_t(lo_chunk) : UINT32_MAX;
+        item.cells[i] = local_bucket(lo, hi, chunk);
       }
       item.max_index = largest;
       item.classified = true;
@@ -890,37 +905,29 @@ class Loader {
       if (item.classified) {
         max_index = std::max(max_index, item.max_index);
         const size_t faces = item.cells.size();
-        for (size_t i = 0; i < faces;) {
-          const uint32_t bucket = item.cells[i];
-          size_t end = i + 1;
-          while (end < faces && item.cells[end] == bucket) ++end;
+        for_each_cell_run(item.cells.data(), faces, [&](uint32_t bucket, uint64_t begin, uint64_t end) {
           if (bucket == UINT32_MAX) {
-            for (size_t f = i; f < end; ++f) spanning_face(batch.first_triangle + f, batch.triangles[f]);
+            for (uint64_t f = begin; f < end; ++f) spanning_face(batch.first_triangle + f, batch.triangles[f]);
           } else {
-            local.add_run(bucket, item.block_records.data() + i * triangle32_record_size, end - i);
-            mesh_.local_faces += end - i;
+            local.add_run(bucket, item.block_records.data() + begin * triangle32_record_size, end - begin);
+            mesh_.local_faces += end - begin;
           }
-          i = end;
-        }
+        });
         face_count = std::max<uint64_t>(face_count, batch.first_triangle + faces);
         return;
       }
+      if (local_size == triangle32_record_size && !batch.triangles.empty())
+        throw Error(ErrorKind::internal, "loader: u32 local faces reached the sink unclassified");
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
         uint64_t face = batch.first_triangle + i;
         const Triangle& t = batch.triangles[i];
         uint64_t lo = std::min({t[0], t[1], t[2]}), hi = std::max({t[0], t[1], t[2]});
         max_index = std::max(max_index, hi);
         if (info.vertex_count && hi >= *info.vertex_count) index_out_of_range(input_.path, face, hi, *info.vertex_count);
-        // hi / chunk <= lo / chunk + 1, with one division instead of two.
-        const uint64_t lo_chunk = lo / chunk;
-        if (hi < (lo_chunk + 2) * chunk) {
-          if (local_size == triangle32_record_size) {
-            const uint32_t ids[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
-            local.add(uint32_t(lo_chunk), ids);
-          } else {
-            LocalFace record{face, t};
-            local.add(uint32_t(lo_chunk), &record);
-          }
+        // Not classified by the transform: local records are LocalFaces.
+        if (const uint32_t bucket = local_bucket(lo, hi, chunk); bucket != UINT32_MAX) {
+          LocalFace record{face, t};
+          local.add(bucket, &record);
           ++mesh_.local_faces;
           continue;
         }
