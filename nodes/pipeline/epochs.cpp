@@ -1257,11 +1257,9 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   job.arena().execute([&] {
     PatchDecimator d(std::move(whole), params);
     st.in_core_carried_bests = d.restored_bests();
-    {
-      const EpochRunStats run = run_epochs(d, st.target_faces, epoch);
-      st.rounds += run.rounds;
-      st.epochs += run.epochs;
-    }
+    const EpochRunStats run = run_epochs(d, st.target_faces, epoch);
+    st.rounds += run.rounds;
+    st.epochs += run.epochs;
     PatchOutput out = d.extract();
     result.points.resize(out.positions.size());
     for (size_t i = 0; i < out.positions.size(); ++i) result.points[i] = out.positions[i];
