@@ -74,21 +74,14 @@ void BM_DecodeBlockFrame(benchmark::State& state) {
 BENCHMARK(BM_DecodeBlockFrame)->Arg(1 << 14)->Arg(1 << 17);
 
 // The raw frames' checksum (XXH3) against XXH64 (chunk files), over a 1 MiB frame.
-void BM_Xxh3(benchmark::State& state) {
+void BM_Checksum(benchmark::State& state, uint64_t (*hash)(const void*, size_t)) {
   std::vector<uint64_t> words(1 << 17);
   for (size_t i = 0; i < words.size(); ++i) words[i] = i * 0x9E3779B97F4A7C15ull;
-  for (auto _ : state) benchmark::DoNotOptimize(io::xxh3(words.data(), words.size() * 8));
+  for (auto _ : state) benchmark::DoNotOptimize(hash(words.data(), words.size() * 8));
   state.SetBytesProcessed(int64_t(state.iterations()) * int64_t(words.size() * 8));
 }
-BENCHMARK(BM_Xxh3);
-
-void BM_Xxh64(benchmark::State& state) {
-  std::vector<uint64_t> words(1 << 17);
-  for (size_t i = 0; i < words.size(); ++i) words[i] = i * 0x9E3779B97F4A7C15ull;
-  for (auto _ : state) benchmark::DoNotOptimize(io::xxh64(words.data(), words.size() * 8));
-  state.SetBytesProcessed(int64_t(state.iterations()) * int64_t(words.size() * 8));
-}
-BENCHMARK(BM_Xxh64);
+BENCHMARK_CAPTURE(BM_Checksum, Xxh3, io::xxh3);
+BENCHMARK_CAPTURE(BM_Checksum, Xxh64, [](const void* data, size_t size) { return io::xxh64(data, size); });
 
 int reencode_main(int argc, char** argv) {
   ReencodeCommand command;
