@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <fstream>
+#include <numeric>
 #include <set>
 #include <thread>
 #include <nlohmann/json.hpp>
@@ -144,6 +145,50 @@ TEST(Reencode, SameBytesOnEveryRunWithAnyThreadCountResidentOrOutOfCore) {
       }
       EXPECT_TRUE(bytes == reference) << "output differs from the first run's";
     }
+  }
+}
+
+// Guarantee 1 again, where the bytes depended on memory: out of core, the loader's
+// vertex window (and so which faces are local to a window and which span two) comes
+// from the memory it got, which the CLI's measured baseline shifts from run to run by
+// a few hundred KiB. A block held its local faces first and its spanning ones after,
+// so a mesh with faces across windows came out in a different face order whenever
+// the baseline moved: `qemflow simplify m.ply out.ply --ratio 1 --mem-budget 48M` on
+// 1M faces with 10% of the vertices shuffled gave a different file on each run. The
+// resident load files every face in input order, so it differs from both (the
+// "resident and out of core write the same bytes" of 9e5e6ae holds only for meshes
+// without spanning faces). Disabled: fails on bc90b0c, no fix yet (review5).
+TEST(Reencode, DISABLED_SameBytesWhateverBaselineTheGovernorMeasured) {
+  TempDir dir;
+  io::IndexedMesh mesh = io::read_mesh(make_mesh(dir, 200'000));
+  // Every 10th vertex swapped with one far away: many faces span vertex windows.
+  const size_t n = mesh.vertices.size();
+  std::vector<uint64_t> moved(n);
+  std::iota(moved.begin(), moved.end(), uint64_t{0});
+  for (size_t i = 0; i < n / 2; i += 10) std::swap(moved[i], moved[n - 1 - i]);
+  std::vector<Point> vertices(n);
+  for (size_t i = 0; i < n; ++i) vertices[moved[i]] = mesh.vertices[i];
+  mesh.vertices = std::move(vertices);
+  for (auto& t : mesh.triangles)
+    for (auto& v : t) v = moved[v];
+  io::write_mesh(dir / "spanning.ply", mesh);
+  std::string reference;
+  // Out of core with two baselines, then resident (which files faces in input order).
+  for (uint64_t baseline : {20ull << 20, 22ull << 20, 0ull}) {
+    SCOPED_TRACE("baseline " + std::to_string(baseline));
+    const bool out_of_core = baseline != 0;
+    Governor governor(out_of_core ? 44ull << 20 : 512ull << 20, baseline);
+    const auto out = dir / ("out" + std::to_string(baseline) + ".ply");
+    ReencodeOptions options{.input = dir / "spanning.ply", .output = out, .scratch_dir = dir.path()};
+    options.load.force_out_of_core = out_of_core;  // window and ranges from the memory the loader got
+    auto result = run_reencode(governor, options, {});
+    EXPECT_EQ(result.report["out_of_core_dereference"].get<bool>(), out_of_core);
+    const std::string bytes = file_bytes(out);
+    if (reference.empty()) {
+      reference = bytes;
+      expect_same_mesh(dir / "spanning.ply", out);
+    }
+    EXPECT_TRUE(bytes == reference) << "output differs from the first run's";
   }
 }
 
