@@ -69,13 +69,23 @@ static_assert(sizeof(PackedBlockFace) == 80);
 // input vertex ids, as u32 when the vertex count fits (12 bytes), else as u64 (24):
 // the output writer needs nothing else, and positions only served to find the cell.
 // 6x to 10x fewer bytes than a BlockFace to store, write and read back.
+// The resident load files every block's faces in input (face-id) order. The
+// out-of-core one files a block's local faces chunk by chunk, then its spanning ones,
+// an order that depends on the vertex chunk, hence on the memory the loader got; so
+// its records also carry the face id (u32 id then u32 ids, 16 bytes, when both counts
+// fit, else u64 id then u64 ids, 32), and the writer puts each block in face-id order:
+// either way a block's faces come out in face-id order (DESIGN.md §3, guarantee 1).
 constexpr uint32_t triangle32_record_size = 3 * sizeof(uint32_t);
+constexpr uint32_t id_triangle32_record_size = 4 * sizeof(uint32_t);
+constexpr uint32_t id_triangle64_record_size = 4 * sizeof(uint64_t);
+bool is_id_triangle_record(uint32_t record_size);
 // Vertex frames in scratch: xyz as floats when every coordinate of the frame is one
 // exactly, else as Points (FrameRef::record_size says which).
 constexpr uint32_t float_vertex_record_size = 3 * sizeof(float);
 constexpr uint32_t triangle64_record_size = 3 * sizeof(uint64_t);
+// Triangle-only records without ids (either width).
 bool is_triangle_record(uint32_t record_size);
-// Triangle-only records (either width) to Triangles.
+// Triangle-only records without ids (either width) to Triangles.
 void unpack_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, Triangle* out);
 
 // Block records of either BlockFace layout (record_size says which) to BlockFaces
@@ -151,7 +161,8 @@ struct LoadedMesh {
   std::vector<std::vector<Bytes>> resident_blocks;
   Lease resident_blocks_lease;
   bool blocks_resident() const { return !resident_blocks.empty(); }
-  // sizeof(BlockFace), sizeof(PackedBlockFace) or a triangle record size
+  // sizeof(BlockFace), sizeof(PackedBlockFace), a triangle record size (resident
+  // triangles_only) or an id-triangle record size (out-of-core triangles_only)
   uint32_t block_record_size = sizeof(BlockFace);
   std::vector<uint64_t> block_faces;          // (kept) faces per cell
   VertexStore vertices;

@@ -467,7 +467,14 @@ class Loader {
   // A face as its block record at `out` (block_record_size bytes); returns its cell.
   // Any thread.
   uint32_t make_record(const BlockFace& face, std::byte* out) const {
-    if (mesh_.block_record_size == triangle32_record_size) {
+    if (mesh_.block_record_size == id_triangle32_record_size) {
+      const uint32_t record[4] = {uint32_t(face.id), uint32_t(face.vertices[0]), uint32_t(face.vertices[1]),
+                                  uint32_t(face.vertices[2])};
+      std::memcpy(out, record, sizeof record);
+    } else if (mesh_.block_record_size == id_triangle64_record_size) {
+      const LocalFace record{face.id, face.vertices};
+      std::memcpy(out, &record, sizeof record);
+    } else if (mesh_.block_record_size == triangle32_record_size) {
       const uint32_t ids[3] = {uint32_t(face.vertices[0]), uint32_t(face.vertices[1]), uint32_t(face.vertices[2])};
       std::memcpy(out, ids, sizeof ids);
     } else if (mesh_.block_record_size == triangle64_record_size) {
@@ -524,8 +531,14 @@ class Loader {
 
   // Once every coordinate has been seen (and the vertex count is known): blocks store
   // triangles only when asked, else floats when that is exact.
+  // Out of core, triangle-only records keep the face id: the writer sorts each block
+  // by it (blocks.hpp).
   uint32_t choose_block_layout() {
-    if (options_.triangles_only) {
+    if (options_.triangles_only && mesh_.out_of_core) {
+      mesh_.block_record_size = mesh_.vertex_count <= UINT32_MAX && mesh_.face_count <= UINT32_MAX
+                                    ? id_triangle32_record_size
+                                    : id_triangle64_record_size;
+    } else if (options_.triangles_only) {
       mesh_.block_record_size =
           mesh_.vertex_count <= UINT32_MAX ? triangle32_record_size : triangle64_record_size;
     } else {
@@ -534,12 +547,17 @@ class Loader {
     return mesh_.block_record_size;
   }
 
-  // Out of core, a local face's spill record: the full LocalFace (id and ids) when the
-  // degree pass reads them back, else for triangle-only blocks just the three ids
-  // (u32 when the header's vertex count allows): 12 bytes instead of 32.
+  // Out of core, a local face's spill record: the full LocalFace (u64 id and ids),
+  // else for triangle-only blocks without the degree pass the face id and the three
+  // ids as u32 when the header's counts allow: 16 bytes instead of 32, and the block
+  // record already (id_triangle32_record_size).
   uint32_t local_record_size() const {
-    const auto& count = input_.info().vertex_count;
-    if (options_.triangles_only && !options_.degrees && count && *count <= UINT32_MAX) return triangle32_record_size;
+    const auto& vertices = input_.info().vertex_count;
+    const auto& faces = input_.info().polygon_count;
+    if (options_.triangles_only && !options_.degrees && vertices && *vertices <= UINT32_MAX && faces &&
+        *faces <= UINT32_MAX) {
+      return id_triangle32_record_size;
+    }
     return sizeof(LocalFace);
   }
 
@@ -852,10 +870,14 @@ class Loader {
         done += n;
       }
       // Faces sorted into local buckets here, on every compute thread, when local
-      // records are u32 ids (the sink then files them a run at a time).
-      if (local_size != triangle32_record_size || batch.triangles.empty()) return;
+      // records are u32 id and ids (the sink then files them a run at a time).
+      if (local_size != id_triangle32_record_size || batch.triangles.empty()) return;
       const size_t faces = batch.triangles.size();
-      item.block_records.resize(faces * triangle32_record_size);
+      if (batch.first_triangle + faces > *info.polygon_count) {
+        throw_bad_input(input_.path.string(), "triangle " + std::to_string(batch.first_triangle),
+                        "more faces than the header declares");
+      }
+      item.block_records.resize(faces * id_triangle32_record_size);
       item.cells.resize(faces);
       uint64_t largest = 0;
       for (size_t i = 0; i < faces; ++i) {
@@ -865,8 +887,8 @@ class Loader {
         if (info.vertex_count && hi >= *info.vertex_count) {
           index_out_of_range(input_.path, batch.first_triangle + i, hi, *info.vertex_count);
         }
-        const uint32_t ids[3] = {uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
-        std::memcpy(item.block_records.data() + i * triangle32_record_size, ids, sizeof ids);
+        const uint32_t record[4] = {uint32_t(batch.first_triangle + i), uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2])};
+        std::memcpy(item.block_records.data() + i * id_triangle32_record_size, record, sizeof record);
         item.cells[i] = local_bucket(lo, hi, chunk);
       }
       item.max_index = largest;
@@ -909,14 +931,14 @@ class Loader {
           if (bucket == UINT32_MAX) {
             for (uint64_t f = begin; f < end; ++f) spanning_face(batch.first_triangle + f, batch.triangles[f]);
           } else {
-            local.add_run(bucket, item.block_records.data() + begin * triangle32_record_size, end - begin);
+            local.add_run(bucket, item.block_records.data() + begin * id_triangle32_record_size, end - begin);
             mesh_.local_faces += end - begin;
           }
         });
         face_count = std::max<uint64_t>(face_count, batch.first_triangle + faces);
         return;
       }
-      if (local_size == triangle32_record_size && !batch.triangles.empty())
+      if (local_size == id_triangle32_record_size && !batch.triangles.empty())
         throw Error(ErrorKind::internal, "loader: u32 local faces reached the sink unclassified");
       for (size_t i = 0; i < batch.triangles.size(); ++i) {
         uint64_t face = batch.first_triangle + i;
@@ -1100,21 +1122,23 @@ class Loader {
         handed_out = true;
       }
       if (has_local) {
-        // u32 local records that are the block records already: only their cells are
-        // made, in place (4 bytes a record); else block records and cells, anew.
-        const bool cells_in_place = local_size == triangle32_record_size &&
-                                    mesh_.block_record_size == triangle32_record_size && verbatim_triangles();
+        // u32 local records that are the block records already (id and ids): only
+        // their cells are made, in place (4 bytes a record); else block records and
+        // cells, anew.
+        const bool cells_in_place = local_size == id_triangle32_record_size &&
+                                    mesh_.block_record_size == id_triangle32_record_size && verbatim_triangles();
         for_each_frame(
             job_, scratch_, "resolve", "local face frames", local.frames(c), local_size,
             [&](const FrameHeader& header, Bytes& records, Lease&) {
               // Records become block records followed by their cells, in one buffer.
               const uint32_t size = mesh_.block_record_size;
               if (cells_in_place) {
-                // The local records are the block records already (three u32 ids): the
-                // cells go after them, in the room the frame's read left (no new buffer).
+                // The local records are the block records already (u32 id and ids):
+                // the cells go after them, in the room the frame's read left (no new
+                // buffer).
                 const uint64_t n = header.count;
                 records.resize(n * (size + sizeof(uint32_t)));
-                const std::byte* ids_at = records.data();
+                const std::byte* ids_at = records.data() + sizeof(uint32_t);
                 auto* cells = reinterpret_cast<uint32_t*>(records.data() + n * size);
                 for (uint64_t i = 0; i < n; ++i, ids_at += size) {
                   uint32_t ids[3];
@@ -1126,23 +1150,13 @@ class Loader {
               }
               Bytes out(header.count * (size + sizeof(uint32_t)));
               auto* cells = reinterpret_cast<uint32_t*>(out.data() + header.count * size);
-              if (local_size == triangle32_record_size && verbatim_triangles()) {
-                for (uint64_t i = 0; i < header.count; ++i) {
-                  uint32_t ids[3];
-                  std::memcpy(ids, records.data() + i * local_size, sizeof ids);
-                  cells[i] = triangle_record({ids[0], ids[1], ids[2]}, position(ids[0] - first), position(ids[1] - first),
-                                             position(ids[2] - first), out.data() + i * size);
-                }
-                records.swap(out);
-                return;
-              }
               BlockFace face;
               for (uint64_t i = 0; i < header.count; ++i) {
                 LocalFace local_face;
-                if (local_size == triangle32_record_size) {
-                  uint32_t ids[3];
-                  std::memcpy(ids, records.data() + i * local_size, sizeof ids);
-                  local_face = {0, {ids[0], ids[1], ids[2]}};
+                if (local_size == id_triangle32_record_size) {
+                  uint32_t record[4];
+                  std::memcpy(record, records.data() + i * local_size, sizeof record);
+                  local_face = {record[0], {record[1], record[2], record[3]}};
                 } else {
                   std::memcpy(&local_face, records.data() + i * local_size, sizeof local_face);
                 }
@@ -1156,7 +1170,7 @@ class Loader {
               const auto* cells = reinterpret_cast<const uint32_t*>(records.data() + header.count * mesh_.block_record_size);
               mesh_.dropped_faces += add_record_runs(blocks, records.data(), cells, header.count);
             },
-            cells_in_place ? triangle32_record_size + sizeof(uint32_t) : sizeof(BlockFace) + sizeof(uint32_t), false,
+            cells_in_place ? id_triangle32_record_size + sizeof(uint32_t) : sizeof(BlockFace) + sizeof(uint32_t), false,
             cells_in_place);
       }
       if (has_corners) {
@@ -1289,6 +1303,10 @@ class Loader {
 
 bool is_triangle_record(uint32_t record_size) {
   return record_size == triangle32_record_size || record_size == triangle64_record_size;
+}
+
+bool is_id_triangle_record(uint32_t record_size) {
+  return record_size == id_triangle32_record_size || record_size == id_triangle64_record_size;
 }
 
 void unpack_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, Triangle* out) {

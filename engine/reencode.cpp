@@ -1,5 +1,7 @@
 #include "engine/reencode.hpp"
 
+#include <oneapi/tbb/parallel_sort.h>
+
 #include <algorithm>
 #include <bit>
 #include <cstring>
@@ -101,24 +103,27 @@ void submit_encoded_triangles(Job& job, io::MeshWriter& writer, Buffer bytes, ui
       job.error_handler(), count * io::ply_triangle_bytes);
 }
 
+// One PLY face record "3 a b c" (io::ply_triangle_bytes) at `at`, as two overlapping
+// 8-byte stores: bytes 0-7 (3, a, b's low three bytes), then bytes 5-12 (b, c).
+void put_ply_triangle32(const uint32_t abc[3], std::byte* at) {
+  static_assert(std::endian::native == std::endian::little);  // as the PLY writer's own encode
+  const uint64_t head = 3 | uint64_t(abc[0]) << 8 | uint64_t(abc[1]) << 40;
+  const uint64_t tail = uint64_t(abc[1]) | uint64_t(abc[2]) << 32;
+  std::memcpy(at, &head, sizeof head);
+  std::memcpy(at + 5, &tail, sizeof tail);
+}
+
 // u32 triangle records (12 bytes) to PLY face records (13 bytes, io::encode_ply_triangles'
 // bytes) at `out`, which may be `records` itself when it has room: backwards, so that
 // each record is read before anything is written over it (record i goes to 13i, at or
 // after where it was, 12i). Returns the largest index.
 uint64_t encode_triangle32_records(const std::byte* records, uint64_t count, std::byte* out) {
-  static_assert(std::endian::native == std::endian::little);  // as the PLY writer's own encode
   uint32_t largest = 0;
   for (uint64_t i = count; i-- > 0;) {
     uint32_t abc[3];
     std::memcpy(abc, records + i * triangle32_record_size, sizeof abc);
     largest = std::max({largest, abc[0], abc[1], abc[2]});
-    // "3 a b c" as two overlapping 8-byte stores: bytes 0-7 (3, a, b's low three
-    // bytes), then bytes 5-12 (b, c).
-    const uint64_t head = 3 | uint64_t(abc[0]) << 8 | uint64_t(abc[1]) << 40;
-    const uint64_t tail = uint64_t(abc[1]) | uint64_t(abc[2]) << 32;
-    std::byte* at = out + i * io::ply_triangle_bytes;
-    std::memcpy(at, &head, sizeof head);
-    std::memcpy(at + 5, &tail, sizeof tail);
+    put_ply_triangle32(abc, out + i * io::ply_triangle_bytes);
   }
   return largest;
 }
@@ -164,15 +169,16 @@ void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io:
   (void)stage;
 }
 
-// Hands `count` triangles (with the lease that covers them) to the I/O thread to write.
-void submit_triangles(Job& job, io::MeshWriter& writer, UninitializedVector<Triangle> triangles, Lease lease) {
-  const uint64_t n = triangles.size();
-  auto held = std::make_shared<std::pair<UninitializedVector<Triangle>, Lease>>(std::move(triangles), std::move(lease));
+// Hands `n` Triangles at the front of `triangles` (with the lease that covers them) to
+// the I/O thread to write.
+template <class Buffer>
+void submit_triangles(Job& job, io::MeshWriter& writer, Buffer triangles, uint64_t n, Lease lease) {
+  auto held = std::make_shared<std::pair<Buffer, Lease>>(std::move(triangles), std::move(lease));
   job.io().submit(
       "write triangles",
-      [&writer, held] {
-        writer.write_triangles(held->first.data(), held->first.size());
-        held->first = {};
+      [&writer, held, n] {
+        writer.write_triangles(reinterpret_cast<const Triangle*>(held->first.data()), n);
+        held->first = Buffer();
         held->second.release();
       },
       job.error_handler(), n * sizeof(Triangle));
@@ -238,7 +244,7 @@ uint64_t write_resident_triangles(Job& job, LoadedMesh& mesh, io::MeshWriter& wr
       unpack_block_triangles(page.data(), n, mesh.block_record_size, triangles.data());
       mesh.resident_blocks_lease.shrink_to(mesh.resident_blocks_lease.bytes() - std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
       page = Bytes();
-      submit_triangles(job, writer, std::move(triangles), std::move(lease));
+      submit_triangles(job, writer, std::move(triangles), n, std::move(lease));
       written += n;
       job.progress(0.9 + 0.1 * double(++done) / double(pages), "write");
     }
@@ -248,6 +254,196 @@ uint64_t write_resident_triangles(Job& job, LoadedMesh& mesh, io::MeshWriter& wr
   mesh.resident_blocks.clear();
   mesh.resident_blocks_lease.release();
   return written;
+}
+
+// Out-of-core blocks hold (face id, triangle) records (blocks.hpp) in an order that
+// depends on the loader's vertex chunk: each block is written in face-id order, as
+// the resident load files it, so the bytes depend on the input alone. A block is
+// gathered (frames decoded on the compute threads), sorted by id unless it is in
+// order already, turned into output records in place and handed to the I/O thread.
+// A block too large for one buffer goes in groups of consecutive id ranges, found
+// from a count of its ids by slab (one more read of the block, then one per group):
+// memory stays bounded and the bytes are the same.
+struct IdTriangle32 {
+  uint32_t id;
+  uint32_t v[3];
+};
+struct IdTriangle64 {
+  uint64_t id;
+  Triangle v;
+};
+static_assert(sizeof(IdTriangle32) == id_triangle32_record_size && sizeof(IdTriangle64) == id_triangle64_record_size);
+
+uint64_t record_id(const std::byte* record, uint32_t record_size) {
+  if (record_size == id_triangle32_record_size) {
+    uint32_t id;
+    std::memcpy(&id, record, sizeof id);
+    return id;
+  }
+  uint64_t id;
+  std::memcpy(&id, record, sizeof id);
+  return id;
+}
+
+// Sorts `n` records by face id; false when they were in order already (no sort).
+template <class Record>
+bool sort_by_face_id(Job& job, std::byte* bytes, uint64_t n) {
+  Record* records = reinterpret_cast<Record*>(bytes);
+  auto by_id = [](const Record& a, const Record& b) { return a.id < b.id; };
+  if (std::is_sorted(records, records + n, by_id)) return false;
+  job.arena().execute([&] { tbb::parallel_sort(records, records + n, by_id); });
+  return true;
+}
+
+// Id-triangle records at `bytes` to output records in place: PLY face records
+// (io::ply_triangle_bytes, forward: record i is read before face i is written, and
+// face i ends before record i + 1 starts) or Triangles (forward from 32-byte records,
+// backward from 16-byte ones, which they outgrow). Returns the largest index.
+uint64_t id_records_to_output(std::byte* bytes, uint64_t n, uint32_t record_size, bool ply) {
+  uint64_t largest = 0;
+  if (ply && record_size == id_triangle32_record_size) {
+    uint32_t largest32 = 0;
+    for (uint64_t i = 0; i < n; ++i) {
+      uint32_t abc[3];
+      std::memcpy(abc, bytes + i * record_size + sizeof(uint32_t), sizeof abc);
+      largest32 = std::max({largest32, abc[0], abc[1], abc[2]});
+      put_ply_triangle32(abc, bytes + i * io::ply_triangle_bytes);
+    }
+    return largest32;
+  }
+  auto triangle_at = [&](uint64_t i) {
+    Triangle t;
+    if (record_size == id_triangle32_record_size) {
+      uint32_t abc[3];
+      std::memcpy(abc, bytes + i * record_size + sizeof(uint32_t), sizeof abc);
+      t = {abc[0], abc[1], abc[2]};
+    } else {
+      std::memcpy(&t, bytes + i * record_size + sizeof(uint64_t), sizeof t);
+    }
+    largest = std::max({largest, t[0], t[1], t[2]});
+    return t;
+  };
+  if (ply) {
+    for (uint64_t i = 0; i < n; ++i) {
+      const Triangle t = triangle_at(i);
+      char face[io::ply_triangle_bytes];
+      uint64_t ignored = 0;
+      io::encode_ply_triangles(&t, 1, face, ignored);
+      std::memcpy(bytes + i * io::ply_triangle_bytes, face, sizeof face);
+    }
+  } else if (record_size == id_triangle32_record_size) {
+    for (uint64_t i = n; i-- > 0;) {
+      const Triangle t = triangle_at(i);
+      std::memcpy(bytes + i * sizeof(Triangle), &t, sizeof t);
+    }
+  } else {
+    for (uint64_t i = 0; i < n; ++i) {
+      const Triangle t = triangle_at(i);
+      std::memcpy(bytes + i * sizeof(Triangle), &t, sizeof t);
+    }
+  }
+  return largest;
+}
+
+struct FaceIdOrderStats {
+  uint64_t written = 0;
+  uint64_t groups = 0;  // buffers written (one per block unless a block was too large)
+  uint64_t sorted = 0;  // groups that were out of order
+};
+
+FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, LoadedMesh& mesh,
+                                               io::MeshWriter& writer, uint64_t group_faces_limit) {
+  const uint32_t record = mesh.block_record_size;
+  const bool ply = encodes_here(writer);
+  const uint64_t out_bytes = ply ? io::ply_triangle_bytes : sizeof(Triangle);
+  const uint64_t per_face = std::max<uint64_t>(record, out_bytes);
+  // A group's buffer: a quarter of what is free now (one being filled, one being
+  // written, and the frames read for it fit beside them).
+  const uint64_t limit = group_faces_limit ? group_faces_limit
+                                           : std::max<uint64_t>(job.governor().available() / 4 / per_face, 1024);
+  FaceIdOrderStats stats;
+  const std::string owner = job.owner("block in face-id order");
+  // Gathers the records of `frames` with an id in [first_id, end_id) into a buffer
+  // of `n`, sorts, converts and submits them.
+  auto write_group = [&](const std::vector<FrameRef>& frames, uint64_t first_id, uint64_t end_id, uint64_t n) {
+    if (n == 0) return;
+    Lease lease = job.governor().acquire(owner, n * per_face, n * per_face, [&job] { return job.stopped(); });
+    job.check();
+    Bytes buffer(n * per_face);
+    uint64_t at = 0;
+    const bool whole = first_id == 0 && end_id == UINT64_MAX;
+    for_each_frame(
+        job, scratch, "write", "block frames", frames, record,
+        [&](const FrameHeader& header, Bytes& records, Lease&) {
+          if (whole) return;
+          uint64_t kept = 0;  // the records of the group, moved to the front
+          for (uint64_t i = 0; i < header.count; ++i) {
+            const std::byte* r = records.data() + i * record;
+            const uint64_t id = record_id(r, record);
+            if (id < first_id || id >= end_id) continue;
+            if (kept != i) std::memmove(records.data() + kept * record, r, record);
+            ++kept;
+          }
+          records.resize(kept * record);
+        },
+        [&](const FrameHeader&, Bytes& records, Lease&) {
+          if (at + records.size() > n * record) throw Error(ErrorKind::internal, "a block holds more faces than it counted");
+          std::memcpy(buffer.data() + at, records.data(), records.size());
+          at += records.size();
+        },
+        0);
+    if (at != n * record) throw Error(ErrorKind::internal, "a block holds fewer faces than it counted");
+    const bool sorted = record == id_triangle32_record_size ? sort_by_face_id<IdTriangle32>(job, buffer.data(), n)
+                                                            : sort_by_face_id<IdTriangle64>(job, buffer.data(), n);
+    stats.sorted += sorted;
+    ++stats.groups;
+    const uint64_t max_index = id_records_to_output(buffer.data(), n, record, ply);
+    buffer.resize(n * out_bytes);
+    if (ply) {
+      submit_encoded_triangles(job, writer, std::move(buffer), n, max_index, std::move(lease));
+    } else {
+      submit_triangles(job, writer, std::move(buffer), n, std::move(lease));
+    }
+    stats.written += n;
+    job.progress(0.9 + 0.1 * double(stats.written) / double(std::max<uint64_t>(mesh.face_count, 1)), "write");
+  };
+  for (uint32_t c = 0; c < mesh.blocks.size(); ++c) {
+    const uint64_t n = mesh.block_faces[c];
+    if (n <= limit) {
+      write_group(mesh.blocks[c], 0, UINT64_MAX, n);
+      continue;
+    }
+    // Too large for one buffer: ids counted by slab, slabs grouped while they fit.
+    const uint64_t slabs =
+        std::clamp<uint64_t>(2 * ((mesh.face_count + limit - 1) / limit), 64, uint64_t{1} << 20);
+    const uint64_t width = std::max<uint64_t>((mesh.face_count + slabs - 1) / slabs, 1);
+    Lease count_lease = job.governor().acquire(owner, slabs * sizeof(uint64_t), slabs * sizeof(uint64_t),
+                                               [&job] { return job.stopped(); });
+    job.check();
+    std::vector<uint64_t> per_slab(slabs, 0);
+    for_each_frame(job, scratch, "write", "block frames", mesh.blocks[c], record, {},
+                   [&](const FrameHeader& header, Bytes& records, Lease&) {
+                     for (uint64_t i = 0; i < header.count; ++i) {
+                       const uint64_t slab = record_id(records.data() + i * record, record) / width;
+                       if (slab >= slabs) throw Error(ErrorKind::internal, "a face id past the face count");
+                       ++per_slab[slab];
+                     }
+                   },
+                   0);
+    for (uint64_t first = 0; first < slabs;) {
+      uint64_t end = first, faces = 0;
+      while (end < slabs && (end == first || faces + per_slab[end] <= limit)) faces += per_slab[end++];
+      if (end == first + 1 && faces > limit) {
+        throw Error(ErrorKind::resource, "re-encode: " + std::to_string(faces) + " faces of one block within " +
+                                             std::to_string(width) + " face ids do not fit the memory budget");
+      }
+      write_group(mesh.blocks[c], first * width, end == slabs ? UINT64_MAX : end * width, faces);
+      first = end;
+    }
+  }
+  job.io().drain();
+  job.check();
+  return stats;
 }
 
 // Reads every block and writes its triangles through the I/O thread.
@@ -303,16 +499,8 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
           job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
           return;
         }
-        auto held = std::make_shared<std::pair<Bytes, Lease>>(std::move(records), lease.split(lease.bytes()));
-        uint64_t n = header.count;
-        job.io().submit(
-            "write triangles",
-            [&writer, held, n] {
-              writer.write_triangles(reinterpret_cast<const Triangle*>(held->first.data()), n);
-              held->first = Bytes();
-              held->second.release();
-            },
-            job.error_handler(), n * sizeof(Triangle));
+        const uint64_t n = header.count;
+        submit_triangles(job, writer, std::move(records), n, lease.split(lease.bytes()));
         written += n;
         job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
       },
@@ -331,10 +519,10 @@ uint64_t expected_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {
   return (zstd_input ? 5 : 2) * input_file_bytes;
 }
 
-// Raw frames: blocks are 12 bytes a face (triangle records), bucketed local faces 12,
-// vertex chunks 24 bytes a vertex, 12 when float (~36 a face; spanning faces cost more, ~170, but are
-// few in real meshes); a binary PLY holds ~19 bytes a face (13 a face, 12 a vertex,
-// half as many vertices as faces).
+// Raw frames: blocks are 16 bytes a face out of core (face id and triangle), bucketed
+// local faces 16, vertex chunks 24 bytes a vertex, 12 when float (~44 a face; spanning
+// faces cost more, ~170, but are few in real meshes); a binary PLY holds ~19 bytes a
+// face (13 a face, 12 a vertex, half as many vertices as faces).
 uint64_t expected_raw_scratch_bytes(uint64_t input_file_bytes, bool zstd_input) {
   return (zstd_input ? 10 : 4) * input_file_bytes;
 }
@@ -402,7 +590,12 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     mesh.vertices.resident = {};
     mesh.vertices.resident_xyz = {};
     mesh.resident_lease.release();
-    uint64_t faces = write_triangles(job, scratch, mesh, *writer);
+    FaceIdOrderStats in_order;
+    const bool ids_in_blocks = is_id_triangle_record(mesh.block_record_size);
+    if (ids_in_blocks) {
+      in_order = write_blocks_in_face_id_order(job, scratch, mesh, *writer, options.group_faces);
+    }
+    uint64_t faces = ids_in_blocks ? in_order.written : write_triangles(job, scratch, mesh, *writer);
     if (faces != mesh.face_count) {
       throw Error(ErrorKind::internal, "re-encode wrote " + std::to_string(faces) + " of " +
                                            std::to_string(mesh.face_count) + " triangles");
@@ -428,6 +621,8 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["local_faces"] = mesh.local_faces;
     result.report["block_record_bytes"] = mesh.block_record_size;
     result.report["spanning_faces"] = mesh.corner_faces;
+    result.report["block_groups"] = in_order.groups;  // out of core: buffers put in face-id order
+    result.report["block_groups_sorted"] = in_order.sorted;  // of them, those that were out of order
     report_scratch(result.report, scratch);
     result.report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
     result.report["input_bytes"] = input_bytes;

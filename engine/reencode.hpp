@@ -7,7 +7,12 @@
 //
 // The output holds the same vertices (same order, same positions to the bit; written
 // as float when every input coordinate is a float, else as double) and the same
-// triangles (same vertex indices), with faces in block order rather than input order.
+// triangles (same vertex indices), with faces in block order rather than input order:
+// block by block (grid cells in index order), each block's faces in face-id order.
+// That order, so the output's bytes, depends only on the input file (and
+// LoadOptions::faces_per_block, which sets the grid), not on the budget, the memory the
+// governor measured, the thread count, or whether the load went out of core (out of
+// core, blocks carry face ids and are sorted by them as they are written).
 // This is `qemflow simplify IN OUT --ratio 1`.
 //
 // Guarantees: peak resident memory stays under the governor's budget (every big
@@ -39,6 +44,9 @@ struct ReencodeOptions {
   std::string job_name;               // prefixes this job's governor owners ("job 2/")
   LoadOptions load;
   ScratchCodec scratch_codec = ScratchCodec::automatic;  // --scratch-codec
+  // Tests: out of core, put blocks in face-id order in groups of at most this many
+  // faces (0: as many as a quarter of the free memory holds).
+  uint64_t group_faces = 0;
 };
 
 struct ReencodeResult {

@@ -88,14 +88,15 @@ TEST(Reencode, OutOfCoreDereferenceWithTinyWindowsGivesTheSameMesh) {
     EXPECT_GT(result.report["spanning_faces"].get<uint64_t>(), 0u);
     EXPECT_EQ(result.report["scratch_codec"], codec == ScratchCodec::raw ? "raw" : "zstd");
     EXPECT_FALSE(result.report["blocks_in_memory"].get<bool>());
-    EXPECT_EQ(result.report["block_record_bytes"], triangle32_record_size);
+    EXPECT_EQ(result.report["block_record_bytes"], id_triangle32_record_size);  // out of core: with face ids
     // One walk over the vertex chunks: every frame written to scratch is read back once.
     EXPECT_EQ(result.report["scratch_bytes_read"], result.report["scratch_bytes_written"]);
     written[codec == ScratchCodec::raw ? 0 : 1] = result.report["scratch_bytes_written"].get<uint64_t>();
     expect_same_mesh(in, dir / "out.obj");
     std::filesystem::remove(dir / "out.obj");
   }
-  EXPECT_GT(written[0], 2 * written[1]);  // raw frames really are raw
+  // Raw frames really are raw (1.97x here since out-of-core records carry face ids).
+  EXPECT_GT(2 * written[0], 3 * written[1]);
   EXPECT_FALSE(default_frame_codec().raw);  // the run's default codec ended with it
 }
 
@@ -148,20 +149,10 @@ TEST(Reencode, SameBytesOnEveryRunWithAnyThreadCountResidentOrOutOfCore) {
   }
 }
 
-// Guarantee 1 again, where the bytes depended on memory: out of core, the loader's
-// vertex window (and so which faces are local to a window and which span two) comes
-// from the memory it got, which the CLI's measured baseline shifts from run to run by
-// a few hundred KiB. A block held its local faces first and its spanning ones after,
-// so a mesh with faces across windows came out in a different face order whenever
-// the baseline moved: `qemflow simplify m.ply out.ply --ratio 1 --mem-budget 48M` on
-// 1M faces with 10% of the vertices shuffled gave a different file on each run. The
-// resident load files every face in input order, so it differs from both (the
-// "resident and out of core write the same bytes" of 9e5e6ae holds only for meshes
-// without spanning faces). Disabled: fails on bc90b0c, no fix yet (review5).
-TEST(Reencode, DISABLED_SameBytesWhateverBaselineTheGovernorMeasured) {
-  TempDir dir;
-  io::IndexedMesh mesh = io::read_mesh(make_mesh(dir, 200'000));
-  // Every 10th vertex swapped with one far away: many faces span vertex windows.
+// A generated mesh with every 10th vertex of its first half swapped with one far away:
+// many faces span vertex windows out of core.
+std::filesystem::path make_spanning_mesh(const TempDir& dir, uint64_t faces) {
+  io::IndexedMesh mesh = io::read_mesh(make_mesh(dir, faces, "unshuffled.ply"));
   const size_t n = mesh.vertices.size();
   std::vector<uint64_t> moved(n);
   std::iota(moved.begin(), moved.end(), uint64_t{0});
@@ -172,6 +163,23 @@ TEST(Reencode, DISABLED_SameBytesWhateverBaselineTheGovernorMeasured) {
   for (auto& t : mesh.triangles)
     for (auto& v : t) v = moved[v];
   io::write_mesh(dir / "spanning.ply", mesh);
+  std::filesystem::remove(dir / "unshuffled.ply");
+  return dir / "spanning.ply";
+}
+
+// Guarantee 1 again, where the bytes depended on memory: out of core, the loader's
+// vertex window (and so which faces are local to a window and which span two) comes
+// from the memory it got, which the CLI's measured baseline shifts from run to run by
+// a few hundred KiB. A block held its local faces first and its spanning ones after,
+// so a mesh with faces across windows came out in a different face order whenever
+// the baseline moved: `qemflow simplify m.ply out.ply --ratio 1 --mem-budget 48M` on
+// 1M faces with 10% of the vertices shuffled gave a different file on each run. The
+// resident load files every face in input order, so it differed from both. Failed on
+// bc90b0c (review5); out-of-core blocks now carry face ids and are written in
+// face-id order, as the resident ones are filed.
+TEST(Reencode, SameBytesWhateverBaselineTheGovernorMeasured) {
+  TempDir dir;
+  make_spanning_mesh(dir, 200'000);
   std::string reference;
   // Out of core with two baselines, then resident (which files faces in input order).
   for (uint64_t baseline : {20ull << 20, 22ull << 20, 0ull}) {
@@ -189,6 +197,56 @@ TEST(Reencode, DISABLED_SameBytesWhateverBaselineTheGovernorMeasured) {
       expect_same_mesh(dir / "spanning.ply", out);
     }
     EXPECT_TRUE(bytes == reference) << "output differs from the first run's";
+  }
+}
+
+// The same bytes, resident or out of core, on a mesh with spanning faces, whatever
+// the window, the face ranges, the budget, the thread count, the scratch codec, and
+// whether blocks go in face-id order whole or in groups of id ranges (a block too
+// large for one buffer); PLY output (encoded here) and OBJ (by its writer).
+TEST(Reencode, ResidentAndOutOfCoreGiveTheSameBytesOnSpanningFaces) {
+  TempDir dir;
+  const auto in = make_spanning_mesh(dir, 60'000);
+  struct Run {
+    uint64_t budget;
+    int threads;
+    uint64_t window, range, group;  // 0: resident (window) or from the memory
+    ScratchCodec codec;
+  };
+  const Run runs[] = {{512ull << 20, 2, 0, 0, 0, ScratchCodec::automatic},
+                      {64ull << 20, 1, 997, 1'231, 0, ScratchCodec::raw},
+                      {96ull << 20, 2, 5'003, 20'011, 0, ScratchCodec::zstd},
+                      {64ull << 20, 2, 2'000, 3'000, 1'500, ScratchCodec::raw}};
+  for (const char* extension : {".ply", ".obj"}) {
+    std::string reference;
+    for (size_t i = 0; i < std::size(runs); ++i) {
+      const Run& run = runs[i];
+      SCOPED_TRACE(std::string(extension) + " run " + std::to_string(i));
+      Governor governor(run.budget, 0);
+      const auto out = dir / ("out" + std::to_string(i) + extension);
+      ReencodeOptions options{.input = in, .output = out, .scratch_dir = dir.path(), .threads = run.threads};
+      options.load = {.faces_per_block = 6'000, .window_vertices = run.window, .range_faces = run.range,
+                      .force_out_of_core = run.window != 0};
+      options.group_faces = run.group;
+      options.scratch_codec = run.codec;
+      auto result = run_reencode(governor, options, {});
+      ASSERT_EQ(result.report["out_of_core_dereference"].get<bool>(), run.window != 0);
+      if (run.window != 0) {
+        EXPECT_GT(result.report["spanning_faces"].get<uint64_t>(), 0u);
+        EXPECT_GT(result.report["block_groups_sorted"].get<uint64_t>(), 0u);  // chunk order is not id order
+        EXPECT_EQ(result.report["block_record_bytes"], id_triangle32_record_size);
+      }
+      if (run.group != 0) {  // groups of at most 1500 faces
+        EXPECT_GE(result.report["block_groups"].get<uint64_t>(), 60'000u / 1'500u);
+      }
+      const std::string bytes = file_bytes(out);
+      if (reference.empty()) {
+        reference = bytes;
+        expect_same_mesh(in, out);
+      }
+      EXPECT_TRUE(bytes == reference) << "output differs from the resident run's";
+      std::filesystem::remove(out);
+    }
   }
 }
 
@@ -248,7 +306,8 @@ TEST(Reencode, DoubleCoordinatesKeepEveryBitInBothModes) {
     options.load = {.faces_per_block = 500, .window_vertices = out_of_core ? 301u : 0u,
                     .range_faces = out_of_core ? 401u : 0u, .force_out_of_core = out_of_core};
     auto result = run_reencode(governor, options, {});
-    EXPECT_EQ(result.report["block_record_bytes"], triangle32_record_size);  // re-encode: triangles only
+    // Re-encode: triangles only (out of core with their face ids).
+    EXPECT_EQ(result.report["block_record_bytes"], out_of_core ? id_triangle32_record_size : triangle32_record_size);
     expect_same_mesh(dir / "in.ply", dir / "out.ply");
   }
 }
