@@ -9,6 +9,7 @@
 #include "engine/process_memory.hpp"
 #include "engine/report.hpp"
 #include "engine/scratch.hpp"
+#include "engine/stream_pass.hpp"
 #include "io/mesh_stream.hpp"
 #include "io/ply_bulk.hpp"
 #include "util/error.hpp"
@@ -258,12 +259,18 @@ uint64_t write_resident_triangles(Job& job, LoadedMesh& mesh, io::MeshWriter& wr
 
 // Out-of-core blocks hold (face id, triangle) records (blocks.hpp) in an order that
 // depends on the loader's vertex chunk: each block is written in face-id order, as
-// the resident load files it, so the bytes depend on the input alone. A block is
-// gathered (frames decoded on the compute threads), sorted by id unless it is in
-// order already, turned into output records in place and handed to the I/O thread.
-// A block too large for one buffer goes in groups of consecutive id ranges, found
-// from a count of its ids by slab (one more read of the block, then one per group):
-// memory stays bounded and the bytes are the same.
+// the resident load files it, so the bytes depend on the input alone.
+//
+// A stream pass over groups (a block, or part of one): the I/O thread reads a group's
+// frames; a compute thread decodes them, splits them into their runs in id order (a
+// block is a few: the loader's chunks, then the spanning faces), merges the runs
+// straight into output records, in pieces of at most ~2 MiB (so buffers come from the
+// heap and are reused, not faulted in afresh), or sorts the records when there are
+// many runs (tiny windows); the sink hands the pieces to the I/O thread in order.
+// A block too large for a quarter of the free memory goes in groups of consecutive
+// id ranges, found from a count of its ids by slab (one more read of the block, and
+// each group reads it again, keeping its ids): memory stays bounded and the bytes
+// are the same.
 struct IdTriangle32 {
   uint32_t id;
   uint32_t v[3];
@@ -285,137 +292,152 @@ uint64_t record_id(const std::byte* record, uint32_t record_size) {
   return id;
 }
 
-// Sorts `n` records by face id; false when they were in order already (no sort).
-template <class Record>
-bool sort_by_face_id(Job& job, std::byte* bytes, uint64_t n) {
-  Record* records = reinterpret_cast<Record*>(bytes);
-  auto by_id = [](const Record& a, const Record& b) { return a.id < b.id; };
-  if (std::is_sorted(records, records + n, by_id)) return false;
-  job.arena().execute([&] { tbb::parallel_sort(records, records + n, by_id); });
-  return true;
-}
+// Output records, appended in pieces of at most `piece_faces`: PLY face records
+// (io::ply_triangle_bytes) or Triangles.
+struct OutputPieces {
+  bool ply = true;
+  uint64_t piece_faces = 1;
+  std::vector<Bytes> pieces;
+  std::vector<uint64_t> faces, max_index;
+  uint64_t bytes_per_face() const { return ply ? io::ply_triangle_bytes : sizeof(Triangle); }
+  // Records [begin, end), a piece's worth at a time.
+  template <class Record>
+  void add(const Record* begin, const Record* end) {
+    while (begin != end) {
+      if (pieces.empty() || faces.back() == piece_faces) {
+        pieces.emplace_back(piece_faces * bytes_per_face());
+        faces.push_back(0);
+        max_index.push_back(0);
+      }
+      const uint64_t n = std::min<uint64_t>(uint64_t(end - begin), piece_faces - faces.back());
+      std::byte* at = pieces.back().data() + faces.back() * bytes_per_face();
+      max_index.back() = std::max(max_index.back(), put(begin, n, at));
+      faces.back() += n;
+      begin += n;
+    }
+  }
+  // n records as output records at `at`; returns the largest index.
+  uint64_t put(const IdTriangle32* r, uint64_t n, std::byte* at) const {
+    uint32_t largest = 0;
+    for (uint64_t i = 0; i < n; ++i) {
+      largest = std::max({largest, r[i].v[0], r[i].v[1], r[i].v[2]});
+      if (ply) {
+        put_ply_triangle32(r[i].v, at + i * io::ply_triangle_bytes);
+      } else {
+        const Triangle t{r[i].v[0], r[i].v[1], r[i].v[2]};
+        std::memcpy(at + i * sizeof t, &t, sizeof t);
+      }
+    }
+    return largest;
+  }
+  uint64_t put(const IdTriangle64* r, uint64_t n, std::byte* at) const {
+    uint64_t largest = 0;
+    for (uint64_t i = 0; i < n; ++i) {
+      if (ply) {
+        io::encode_ply_triangles(&r[i].v, 1, reinterpret_cast<char*>(at + i * io::ply_triangle_bytes), largest);
+      } else {
+        largest = std::max({largest, r[i].v[0], r[i].v[1], r[i].v[2]});
+        std::memcpy(at + i * sizeof(Triangle), &r[i].v, sizeof(Triangle));
+      }
+    }
+    return largest;
+  }
+  void finish() {  // the last piece to its size
+    if (!pieces.empty()) pieces.back().resize(faces.back() * bytes_per_face());
+  }
+};
 
-// Id-triangle records at `bytes` to output records in place: PLY face records
-// (io::ply_triangle_bytes, forward: record i is read before face i is written, and
-// face i ends before record i + 1 starts) or Triangles (forward from 32-byte records,
-// backward from 16-byte ones, which they outgrow). Returns the largest index.
-uint64_t id_records_to_output(std::byte* bytes, uint64_t n, uint32_t record_size, bool ply) {
-  uint64_t largest = 0;
-  if (ply && record_size == id_triangle32_record_size) {
-    uint32_t largest32 = 0;
-    for (uint64_t i = 0; i < n; ++i) {
-      uint32_t abc[3];
-      std::memcpy(abc, bytes + i * record_size + sizeof(uint32_t), sizeof abc);
-      largest32 = std::max({largest32, abc[0], abc[1], abc[2]});
-      put_ply_triangle32(abc, bytes + i * io::ply_triangle_bytes);
-    }
-    return largest32;
-  }
-  auto triangle_at = [&](uint64_t i) {
-    Triangle t;
-    if (record_size == id_triangle32_record_size) {
-      uint32_t abc[3];
-      std::memcpy(abc, bytes + i * record_size + sizeof(uint32_t), sizeof abc);
-      t = {abc[0], abc[1], abc[2]};
-    } else {
-      std::memcpy(&t, bytes + i * record_size + sizeof(uint64_t), sizeof t);
-    }
-    largest = std::max({largest, t[0], t[1], t[2]});
-    return t;
+// Records (in decoded frames) to `out` in face-id order; true when they were not in
+// that order already. Runs in id order (each frame's, cut where an id goes down) are
+// merged, the run with the smallest head emitting while it stays below every other
+// head: a scan of the heads per switch between runs, and switches are few when runs
+// interleave little (a block's chunks and spanning faces). Past `max_breaks` places
+// where the order goes down, or `max_runs` runs, the records are gathered and sorted.
+template <class Record>
+bool merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& out) {
+  constexpr size_t max_breaks = 64, max_runs = 1024;
+  struct Run {
+    const Record* at;
+    const Record* end;
   };
-  if (ply) {
-    for (uint64_t i = 0; i < n; ++i) {
-      const Triangle t = triangle_at(i);
-      char face[io::ply_triangle_bytes];
-      uint64_t ignored = 0;
-      io::encode_ply_triangles(&t, 1, face, ignored);
-      std::memcpy(bytes + i * io::ply_triangle_bytes, face, sizeof face);
-    }
-  } else if (record_size == id_triangle32_record_size) {
-    for (uint64_t i = n; i-- > 0;) {
-      const Triangle t = triangle_at(i);
-      std::memcpy(bytes + i * sizeof(Triangle), &t, sizeof t);
-    }
-  } else {
-    for (uint64_t i = 0; i < n; ++i) {
-      const Triangle t = triangle_at(i);
-      std::memcpy(bytes + i * sizeof(Triangle), &t, sizeof t);
+  std::vector<Run> runs;
+  uint64_t n = 0;
+  for (const Bytes& frame : frames) {
+    const auto* records = reinterpret_cast<const Record*>(frame.data());
+    const uint64_t count = frame.size() / sizeof(Record);
+    n += count;
+    for (uint64_t begin = 0, i = 1; begin < count; ++i) {
+      if (i == count || records[i].id < records[i - 1].id) {
+        runs.push_back({records + begin, records + i});
+        begin = i;
+      }
     }
   }
-  return largest;
+  size_t breaks = 0;
+  for (size_t r = 1; r < runs.size(); ++r) breaks += runs[r].at->id < (runs[r - 1].end - 1)->id;
+  const bool reordered = breaks > 0;
+  if (breaks > max_breaks || runs.size() > max_runs) {
+    UninitializedVector<Record> all(n);
+    uint64_t at = 0;
+    for (Bytes& frame : frames) {
+      std::memcpy(static_cast<void*>(all.data() + at), frame.data(), frame.size());
+      at += frame.size() / sizeof(Record);
+      frame = Bytes();
+    }
+    job.arena().execute(
+        [&] { tbb::parallel_sort(all.begin(), all.end(), [](const Record& a, const Record& b) { return a.id < b.id; }); });
+    out.add(all.data(), all.data() + n);
+    return reordered;
+  }
+  while (!runs.empty()) {
+    size_t best = 0;
+    uint64_t second = UINT64_MAX;
+    for (size_t r = 1; r < runs.size(); ++r) {
+      if (runs[r].at->id < runs[best].at->id) {
+        second = runs[best].at->id;
+        best = r;
+      } else {
+        second = std::min<uint64_t>(second, runs[r].at->id);
+      }
+    }
+    Run& run = runs[best];
+    const Record* stop = run.at + 1;
+    while (stop != run.end && stop->id < second) ++stop;
+    out.add(run.at, stop);
+    run.at = stop;
+    if (run.at == run.end) runs.erase(runs.begin() + int64_t(best));
+  }
+  return reordered;
 }
 
 struct FaceIdOrderStats {
   uint64_t written = 0;
-  uint64_t groups = 0;  // buffers written (one per block unless a block was too large)
-  uint64_t sorted = 0;  // groups that were out of order
+  uint64_t groups = 0;  // stream items: one per block unless a block was too large
+  uint64_t sorted = 0;  // groups that were not in face-id order already
 };
 
 FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, LoadedMesh& mesh,
                                                io::MeshWriter& writer, uint64_t group_faces_limit) {
   const uint32_t record = mesh.block_record_size;
   const bool ply = encodes_here(writer);
-  const uint64_t out_bytes = ply ? io::ply_triangle_bytes : sizeof(Triangle);
-  const uint64_t per_face = std::max<uint64_t>(record, out_bytes);
-  // A group's buffer: a quarter of what is free now (one being filled, one being
-  // written, and the frames read for it fit beside them).
+  const uint64_t per_face = record + (ply ? io::ply_triangle_bytes : sizeof(Triangle));
   const uint64_t limit = group_faces_limit ? group_faces_limit
                                            : std::max<uint64_t>(job.governor().available() / 4 / per_face, 1024);
-  FaceIdOrderStats stats;
   const std::string owner = job.owner("block in face-id order");
-  // Gathers the records of `frames` with an id in [first_id, end_id) into a buffer
-  // of `n`, sorts, converts and submits them.
-  auto write_group = [&](const std::vector<FrameRef>& frames, uint64_t first_id, uint64_t end_id, uint64_t n) {
-    if (n == 0) return;
-    Lease lease = job.governor().acquire(owner, n * per_face, n * per_face, [&job] { return job.stopped(); });
-    job.check();
-    Bytes buffer(n * per_face);
-    uint64_t at = 0;
-    const bool whole = first_id == 0 && end_id == UINT64_MAX;
-    for_each_frame(
-        job, scratch, "write", "block frames", frames, record,
-        [&](const FrameHeader& header, Bytes& records, Lease&) {
-          if (whole) return;
-          uint64_t kept = 0;  // the records of the group, moved to the front
-          for (uint64_t i = 0; i < header.count; ++i) {
-            const std::byte* r = records.data() + i * record;
-            const uint64_t id = record_id(r, record);
-            if (id < first_id || id >= end_id) continue;
-            if (kept != i) std::memmove(records.data() + kept * record, r, record);
-            ++kept;
-          }
-          records.resize(kept * record);
-        },
-        [&](const FrameHeader&, Bytes& records, Lease&) {
-          if (at + records.size() > n * record) throw Error(ErrorKind::internal, "a block holds more faces than it counted");
-          std::memcpy(buffer.data() + at, records.data(), records.size());
-          at += records.size();
-        },
-        0);
-    if (at != n * record) throw Error(ErrorKind::internal, "a block holds fewer faces than it counted");
-    const bool sorted = record == id_triangle32_record_size ? sort_by_face_id<IdTriangle32>(job, buffer.data(), n)
-                                                            : sort_by_face_id<IdTriangle64>(job, buffer.data(), n);
-    stats.sorted += sorted;
-    ++stats.groups;
-    const uint64_t max_index = id_records_to_output(buffer.data(), n, record, ply);
-    buffer.resize(n * out_bytes);
-    if (ply) {
-      submit_encoded_triangles(job, writer, std::move(buffer), n, max_index, std::move(lease));
-    } else {
-      submit_triangles(job, writer, std::move(buffer), n, std::move(lease));
-    }
-    stats.written += n;
-    job.progress(0.9 + 0.1 * double(stats.written) / double(std::max<uint64_t>(mesh.face_count, 1)), "write");
+  struct Group {
+    uint32_t cell;
+    uint64_t first_id, end_id, faces;
   };
+  std::vector<Group> groups;
   for (uint32_t c = 0; c < mesh.blocks.size(); ++c) {
     const uint64_t n = mesh.block_faces[c];
+    if (n == 0) continue;
     if (n <= limit) {
-      write_group(mesh.blocks[c], 0, UINT64_MAX, n);
+      groups.push_back({c, 0, UINT64_MAX, n});
       continue;
     }
-    // Too large for one buffer: ids counted by slab, slabs grouped while they fit.
-    const uint64_t slabs =
-        std::clamp<uint64_t>(2 * ((mesh.face_count + limit - 1) / limit), 64, uint64_t{1} << 20);
+    // Too large for one group: ids counted by slab, slabs grouped while they fit.
+    const uint64_t slabs = std::clamp<uint64_t>(2 * ((mesh.face_count + limit - 1) / limit), 64, uint64_t{1} << 20);
     const uint64_t width = std::max<uint64_t>((mesh.face_count + slabs - 1) / slabs, 1);
     Lease count_lease = job.governor().acquire(owner, slabs * sizeof(uint64_t), slabs * sizeof(uint64_t),
                                                [&job] { return job.stopped(); });
@@ -437,10 +459,91 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
         throw Error(ErrorKind::resource, "re-encode: " + std::to_string(faces) + " faces of one block within " +
                                              std::to_string(width) + " face ids do not fit the memory budget");
       }
-      write_group(mesh.blocks[c], first * width, end == slabs ? UINT64_MAX : end * width, faces);
+      if (faces > 0) groups.push_back({c, first * width, end == slabs ? UINT64_MAX : end * width, faces});
       first = end;
     }
   }
+
+  struct GroupItem {
+    const Group* group = nullptr;
+    std::vector<std::pair<std::array<std::byte, frame_header_bytes>, Bytes>> encoded;
+    std::vector<Bytes> frames;  // decoded: the group's records
+    OutputPieces out;
+    bool reordered = false;
+  };
+  FaceIdOrderStats stats;
+  size_t next = 0;
+  StreamPass<GroupItem> pass;
+  pass.stage = "write";
+  pass.read_name = "read scratch";
+  pass.transform_name = "face-id order";
+  pass.owner = "block in face-id order";
+  pass.max_in_flight = 4;
+  pass.next_item_bytes = [&] {
+    if (next == groups.size()) return uint64_t(1);
+    uint64_t bytes = groups[next].faces * per_face;
+    for (const FrameRef& ref : mesh.blocks[groups[next].cell]) bytes += ref.bytes;
+    return bytes;
+  };
+  pass.read = [&](GroupItem& item, Lease&) {
+    if (next == groups.size()) return false;
+    item.group = &groups[next++];
+    for (const FrameRef& ref : mesh.blocks[item.group->cell]) {
+      auto& [header, payload] = item.encoded.emplace_back();
+      if (ref.bytes < frame_header_bytes) throw Error(ErrorKind::internal, "a block frame shorter than its header");
+      scratch.read(ref.file, ref.offset, header.data(), frame_header_bytes);
+      payload.resize(ref.bytes - frame_header_bytes);
+      scratch.read(ref.file, ref.offset + frame_header_bytes, payload.data(), payload.size());
+      job.stage("write").bytes_read += ref.bytes;
+    }
+    return true;
+  };
+  pass.transform = [&](GroupItem& item, Lease&) {
+    const Group& group = *item.group;
+    const bool whole = group.first_id == 0 && group.end_id == UINT64_MAX;
+    uint64_t faces = 0;
+    for (auto& [header_bytes, payload] : item.encoded) {
+      const FrameHeader header = decode_frame_payload(header_bytes.data(), payload, record, "block frame");
+      if (!whole) {  // the group's records, moved to the front
+        uint64_t kept = 0;
+        for (uint64_t i = 0; i < header.count; ++i) {
+          const std::byte* r = payload.data() + i * record;
+          const uint64_t id = record_id(r, record);
+          if (id < group.first_id || id >= group.end_id) continue;
+          if (kept != i) std::memmove(payload.data() + kept * record, r, record);
+          ++kept;
+        }
+        payload.resize(kept * record);
+      }
+      faces += payload.size() / record;
+      item.frames.push_back(std::move(payload));
+    }
+    item.encoded = {};
+    if (faces != group.faces) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
+    item.out.ply = ply;
+    item.out.piece_faces = (2u << 20) / item.out.bytes_per_face();
+    item.reordered = record == id_triangle32_record_size ? merge_in_face_id_order<IdTriangle32>(job, item.frames, item.out)
+                                                         : merge_in_face_id_order<IdTriangle64>(job, item.frames, item.out);
+    item.frames = {};
+    item.out.finish();
+  };
+  pass.sink = [&](GroupItem& item, Lease& lease) {
+    OutputPieces& out = item.out;
+    for (size_t p = 0; p < out.pieces.size(); ++p) {
+      Lease piece_lease = lease.split(std::min<uint64_t>(lease.bytes(), out.pieces[p].capacity()));
+      if (ply) {
+        submit_encoded_triangles(job, writer, std::move(out.pieces[p]), out.faces[p], out.max_index[p],
+                                 std::move(piece_lease));
+      } else {
+        submit_triangles(job, writer, std::move(out.pieces[p]), out.faces[p], std::move(piece_lease));
+      }
+      stats.written += out.faces[p];
+    }
+    ++stats.groups;
+    stats.sorted += item.reordered;
+    job.progress(0.9 + 0.1 * double(stats.written) / double(std::max<uint64_t>(mesh.face_count, 1)), "write");
+  };
+  run_stream_pass(job, pass);
   job.io().drain();
   job.check();
   return stats;

@@ -51,6 +51,7 @@ class BucketSpill {
     std::byte* at = b.pages.back().get() + b.used_in_last;
     switch (record_size_) {
       case 12: std::memcpy(at, record, 12); break;
+      case 16: std::memcpy(at, record, 16); break;
       case 24: std::memcpy(at, record, 24); break;
       case 32: std::memcpy(at, record, 32); break;
       default: std::memcpy(at, record, record_size_);
