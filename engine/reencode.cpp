@@ -376,7 +376,14 @@ bool merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& 
   size_t breaks = 0;
   for (size_t r = 1; r < runs.size(); ++r) breaks += runs[r].at->id < (runs[r - 1].end - 1)->id;
   const bool reordered = breaks > 0;
-  if (breaks > max_breaks || runs.size() > max_runs) {
+  auto by_id = [](const Record& a, const Record& b) { return a.id < b.id; };
+  if ((breaks > max_breaks || runs.size() > max_runs) && frames.size() == 1) {  // sorted where it is
+    Record* all = reinterpret_cast<Record*>(frames[0].data());
+    job.arena().execute([&] { tbb::parallel_sort(all, all + n, by_id); });
+    out.add(all, all + n);
+    return reordered;
+  }
+  if (breaks > max_breaks || runs.size() > max_runs) {  // gathered (each frame freed once copied) and sorted
     UninitializedVector<Record> all(n);
     uint64_t at = 0;
     for (Bytes& frame : frames) {
@@ -384,8 +391,7 @@ bool merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& 
       at += frame.size() / sizeof(Record);
       frame = Bytes();
     }
-    job.arena().execute(
-        [&] { tbb::parallel_sort(all.begin(), all.end(), [](const Record& a, const Record& b) { return a.id < b.id; }); });
+    job.arena().execute([&] { tbb::parallel_sort(all.begin(), all.end(), by_id); });
     out.add(all.data(), all.data() + n);
     return reordered;
   }
@@ -420,115 +426,25 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
                                                io::MeshWriter& writer, uint64_t group_faces_limit) {
   const uint32_t record = mesh.block_record_size;
   const bool ply = encodes_here(writer);
-  const uint64_t per_face = record + (ply ? io::ply_triangle_bytes : sizeof(Triangle));
+  // A group in memory: its records (read, then decoded) and its output records.
+  const uint64_t per_face = 2 * record + (ply ? io::ply_triangle_bytes : sizeof(Triangle));
+  // Groups of at most half of what is free now: two in flight, so that one is read
+  // while the other is put in order.
   const uint64_t limit = group_faces_limit ? group_faces_limit
-                                           : std::max<uint64_t>(job.governor().available() / 4 / per_face, 1024);
+                                           : std::max<uint64_t>(job.governor().available() / 2 / per_face, 1024);
   const std::string owner = job.owner("block in face-id order");
-  struct Group {
-    uint32_t cell;
-    uint64_t first_id, end_id, faces;
-  };
-  std::vector<Group> groups;
-  for (uint32_t c = 0; c < mesh.blocks.size(); ++c) {
-    const uint64_t n = mesh.block_faces[c];
-    if (n == 0) continue;
-    if (n <= limit) {
-      groups.push_back({c, 0, UINT64_MAX, n});
-      continue;
-    }
-    // Too large for one group: ids counted by slab, slabs grouped while they fit.
-    const uint64_t slabs = std::clamp<uint64_t>(2 * ((mesh.face_count + limit - 1) / limit), 64, uint64_t{1} << 20);
-    const uint64_t width = std::max<uint64_t>((mesh.face_count + slabs - 1) / slabs, 1);
-    Lease count_lease = job.governor().acquire(owner, slabs * sizeof(uint64_t), slabs * sizeof(uint64_t),
-                                               [&job] { return job.stopped(); });
-    job.check();
-    std::vector<uint64_t> per_slab(slabs, 0);
-    for_each_frame(job, scratch, "write", "block frames", mesh.blocks[c], record, {},
-                   [&](const FrameHeader& header, Bytes& records, Lease&) {
-                     for (uint64_t i = 0; i < header.count; ++i) {
-                       const uint64_t slab = record_id(records.data() + i * record, record) / width;
-                       if (slab >= slabs) throw Error(ErrorKind::internal, "a face id past the face count");
-                       ++per_slab[slab];
-                     }
-                   },
-                   0);
-    for (uint64_t first = 0; first < slabs;) {
-      uint64_t end = first, faces = 0;
-      while (end < slabs && (end == first || faces + per_slab[end] <= limit)) faces += per_slab[end++];
-      if (end == first + 1 && faces > limit) {
-        throw Error(ErrorKind::resource, "re-encode: " + std::to_string(faces) + " faces of one block within " +
-                                             std::to_string(width) + " face ids do not fit the memory budget");
-      }
-      if (faces > 0) groups.push_back({c, first * width, end == slabs ? UINT64_MAX : end * width, faces});
-      first = end;
-    }
-  }
-
-  struct GroupItem {
-    const Group* group = nullptr;
-    std::vector<std::pair<std::array<std::byte, frame_header_bytes>, Bytes>> encoded;
-    std::vector<Bytes> frames;  // decoded: the group's records
-    OutputPieces out;
-    bool reordered = false;
-  };
   FaceIdOrderStats stats;
-  size_t next = 0;
-  StreamPass<GroupItem> pass;
-  pass.stage = "write";
-  pass.read_name = "read scratch";
-  pass.transform_name = "face-id order";
-  pass.owner = "block in face-id order";
-  pass.max_in_flight = 4;
-  pass.next_item_bytes = [&] {
-    if (next == groups.size()) return uint64_t(1);
-    uint64_t bytes = groups[next].faces * per_face;
-    for (const FrameRef& ref : mesh.blocks[groups[next].cell]) bytes += ref.bytes;
-    return bytes;
+  auto merge = [&](std::vector<Bytes>& frames, OutputPieces& out) {
+    out.ply = ply;
+    out.piece_faces = (2u << 20) / out.bytes_per_face();
+    const bool reordered = record == id_triangle32_record_size ? merge_in_face_id_order<IdTriangle32>(job, frames, out)
+                                                               : merge_in_face_id_order<IdTriangle64>(job, frames, out);
+    frames = {};
+    out.finish();
+    return reordered;
   };
-  pass.read = [&](GroupItem& item, Lease&) {
-    if (next == groups.size()) return false;
-    item.group = &groups[next++];
-    for (const FrameRef& ref : mesh.blocks[item.group->cell]) {
-      auto& [header, payload] = item.encoded.emplace_back();
-      if (ref.bytes < frame_header_bytes) throw Error(ErrorKind::internal, "a block frame shorter than its header");
-      scratch.read(ref.file, ref.offset, header.data(), frame_header_bytes);
-      payload.resize(ref.bytes - frame_header_bytes);
-      scratch.read(ref.file, ref.offset + frame_header_bytes, payload.data(), payload.size());
-      job.stage("write").bytes_read += ref.bytes;
-    }
-    return true;
-  };
-  pass.transform = [&](GroupItem& item, Lease&) {
-    const Group& group = *item.group;
-    const bool whole = group.first_id == 0 && group.end_id == UINT64_MAX;
-    uint64_t faces = 0;
-    for (auto& [header_bytes, payload] : item.encoded) {
-      const FrameHeader header = decode_frame_payload(header_bytes.data(), payload, record, "block frame");
-      if (!whole) {  // the group's records, moved to the front
-        uint64_t kept = 0;
-        for (uint64_t i = 0; i < header.count; ++i) {
-          const std::byte* r = payload.data() + i * record;
-          const uint64_t id = record_id(r, record);
-          if (id < group.first_id || id >= group.end_id) continue;
-          if (kept != i) std::memmove(payload.data() + kept * record, r, record);
-          ++kept;
-        }
-        payload.resize(kept * record);
-      }
-      faces += payload.size() / record;
-      item.frames.push_back(std::move(payload));
-    }
-    item.encoded = {};
-    if (faces != group.faces) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
-    item.out.ply = ply;
-    item.out.piece_faces = (2u << 20) / item.out.bytes_per_face();
-    item.reordered = record == id_triangle32_record_size ? merge_in_face_id_order<IdTriangle32>(job, item.frames, item.out)
-                                                         : merge_in_face_id_order<IdTriangle64>(job, item.frames, item.out);
-    item.frames = {};
-    item.out.finish();
-  };
-  pass.sink = [&](GroupItem& item, Lease& lease) {
-    OutputPieces& out = item.out;
+  // Output pieces to the I/O thread, in order, each with its part of `lease`.
+  auto submit = [&](OutputPieces& out, bool reordered, Lease& lease) {
     for (size_t p = 0; p < out.pieces.size(); ++p) {
       Lease piece_lease = lease.split(std::min<uint64_t>(lease.bytes(), out.pieces[p].capacity()));
       if (ply) {
@@ -540,10 +456,139 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
       stats.written += out.faces[p];
     }
     ++stats.groups;
-    stats.sorted += item.reordered;
+    stats.sorted += reordered;
     job.progress(0.9 + 0.1 * double(stats.written) / double(std::max<uint64_t>(mesh.face_count, 1)), "write");
   };
-  run_stream_pass(job, pass);
+
+  // Whole blocks that fit, [first, end): a stream pass, an item a block.
+  struct BlockItem {
+    uint32_t cell = 0;
+    std::vector<std::pair<std::array<std::byte, frame_header_bytes>, Bytes>> encoded;
+    OutputPieces out;
+    bool reordered = false;
+  };
+  auto write_whole_blocks = [&](uint32_t first, uint32_t end) {
+    uint32_t next = first;
+    auto skip_empty = [&] {
+      while (next < end && mesh.block_faces[next] == 0) ++next;
+    };
+    StreamPass<BlockItem> pass;
+    pass.stage = "write";
+    pass.read_name = "read scratch";
+    pass.transform_name = "face-id order";
+    pass.owner = "block in face-id order";
+    pass.max_in_flight = 4;
+    pass.next_item_bytes = [&] {
+      skip_empty();
+      if (next == end) return uint64_t(1);
+      uint64_t bytes = mesh.block_faces[next] * (per_face - record);  // decoded and output records
+      for (const FrameRef& ref : mesh.blocks[next]) bytes += ref.bytes;
+      return bytes;
+    };
+    pass.read = [&](BlockItem& item, Lease&) {
+      skip_empty();
+      if (next == end) return false;
+      item.cell = next++;
+      for (const FrameRef& ref : mesh.blocks[item.cell]) {
+        auto& [header, payload] = item.encoded.emplace_back();
+        if (ref.bytes < frame_header_bytes) throw Error(ErrorKind::internal, "a block frame shorter than its header");
+        scratch.read(ref.file, ref.offset, header.data(), frame_header_bytes);
+        payload.resize(ref.bytes - frame_header_bytes);
+        scratch.read(ref.file, ref.offset + frame_header_bytes, payload.data(), payload.size());
+        job.stage("write").bytes_read += ref.bytes;
+      }
+      return true;
+    };
+    pass.transform = [&](BlockItem& item, Lease&) {
+      std::vector<Bytes> frames;
+      uint64_t faces = 0;
+      for (auto& [header, payload] : item.encoded) {
+        faces += decode_frame_payload(header.data(), payload, record, "block frame").count;
+        frames.push_back(std::move(payload));
+      }
+      item.encoded = {};
+      if (faces != mesh.block_faces[item.cell]) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
+      item.reordered = merge(frames, item.out);
+    };
+    pass.sink = [&](BlockItem& item, Lease& lease) { submit(item.out, item.reordered, lease); };
+    run_stream_pass(job, pass);
+  };
+
+  // A block too large for one group: its ids counted by slab, slabs grouped while they
+  // fit, and each group gathered from a read of the whole block (frame by frame),
+  // then put in order and written.
+  auto write_large_block = [&](uint32_t cell) {
+    const std::vector<FrameRef>& frames = mesh.blocks[cell];
+    const uint64_t slabs = std::clamp<uint64_t>(2 * ((mesh.face_count + limit - 1) / limit), 64, uint64_t{1} << 20);
+    const uint64_t width = std::max<uint64_t>((mesh.face_count + slabs - 1) / slabs, 1);
+    std::vector<uint64_t> per_slab;
+    {
+      Lease count_lease = job.governor().acquire(owner, slabs * sizeof(uint64_t), slabs * sizeof(uint64_t),
+                                                 [&job] { return job.stopped(); });
+      job.check();
+      per_slab.assign(slabs, 0);
+      for_each_frame(job, scratch, "write", "block frames", frames, record, {},
+                     [&](const FrameHeader& header, Bytes& records, Lease&) {
+                       for (uint64_t i = 0; i < header.count; ++i) {
+                         const uint64_t slab = record_id(records.data() + i * record, record) / width;
+                         if (slab >= slabs) throw Error(ErrorKind::internal, "a face id past the face count");
+                         ++per_slab[slab];
+                       }
+                     },
+                     0);
+    }
+    for (uint64_t first = 0; first < slabs;) {
+      uint64_t end = first, faces = 0;
+      while (end < slabs && (end == first || faces + per_slab[end] <= limit)) faces += per_slab[end++];
+      if (end == first + 1 && faces > limit) {
+        throw Error(ErrorKind::resource, "re-encode: " + std::to_string(faces) + " faces of one block within " +
+                                             std::to_string(width) + " face ids do not fit the memory budget");
+      }
+      const uint64_t first_id = first * width, end_id = end * width;
+      first = end;
+      if (faces == 0) continue;
+      Lease lease = job.governor().acquire(owner, faces * (per_face - record), faces * (per_face - record),
+                                           [&job] { return job.stopped(); });
+      job.check();
+      std::vector<Bytes> group(1);
+      group[0].resize(faces * record);
+      uint64_t at = 0;
+      for_each_frame(
+          job, scratch, "write", "block frames", frames, record,
+          [&](const FrameHeader& header, Bytes& records, Lease&) {  // the group's records, to the front
+            uint64_t kept = 0;
+            for (uint64_t i = 0; i < header.count; ++i) {
+              const std::byte* r = records.data() + i * record;
+              const uint64_t id = record_id(r, record);
+              if (id < first_id || id >= end_id) continue;
+              if (kept != i) std::memmove(records.data() + kept * record, r, record);
+              ++kept;
+            }
+            records.resize(kept * record);
+          },
+          [&](const FrameHeader&, Bytes& records, Lease&) {
+            if (at + records.size() > group[0].size()) throw Error(ErrorKind::internal, "a block holds more faces than it counted");
+            std::memcpy(group[0].data() + at, records.data(), records.size());
+            at += records.size();
+          },
+          0);
+      if (at != group[0].size()) throw Error(ErrorKind::internal, "a block holds fewer faces than it counted");
+      OutputPieces out;
+      const bool reordered = merge(group, out);
+      submit(out, reordered, lease);
+    }
+  };
+
+  for (uint32_t c = 0; c < mesh.blocks.size();) {
+    if (mesh.block_faces[c] > limit) {
+      write_large_block(c++);
+      continue;
+    }
+    uint32_t end = c;
+    while (end < mesh.blocks.size() && mesh.block_faces[end] <= limit) ++end;
+    write_whole_blocks(c, end);
+    c = end;
+  }
   job.io().drain();
   job.check();
   return stats;
