@@ -45,7 +45,7 @@ struct ReencodeOptions {
   LoadOptions load;
   ScratchCodec scratch_codec = ScratchCodec::automatic;  // --scratch-codec
   // Tests: out of core, put blocks in face-id order in groups of at most this many
-  // faces (0: as many as a quarter of the free memory holds).
+  // faces (0: as many as half of the free memory holds).
   uint64_t group_faces = 0;
 };
 
