@@ -477,7 +477,7 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
     pass.read_name = "read scratch";
     pass.transform_name = "face-id order";
     pass.owner = "block in face-id order";
-    pass.max_in_flight = 4;
+    pass.max_in_flight = 2;
     pass.next_item_bytes = [&] {
       skip_empty();
       if (next == end) return uint64_t(1);
