@@ -347,14 +347,16 @@ struct OutputPieces {
   }
 };
 
-// Records (in decoded frames) to `out` in face-id order; true when they were not in
-// that order already. Runs in id order (each frame's, cut where an id goes down) are
+// How a group got into face-id order.
+enum class Ordering { already, merged, sorted };
+
+// Records (in decoded frames) to `out` in face-id order. Runs in id order (each frame's, cut where an id goes down) are
 // merged, the run with the smallest head emitting while it stays below every other
 // head: a scan of the heads per switch between runs, and switches are few when runs
 // interleave little (a block's chunks and spanning faces). Past `max_breaks` places
 // where the order goes down, or `max_runs` runs, the records are gathered and sorted.
 template <class Record>
-bool merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& out) {
+Ordering merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& out) {
   constexpr size_t max_breaks = 64, max_runs = 1024;
   struct Run {
     const Record* at;
@@ -375,13 +377,12 @@ bool merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& 
   }
   size_t breaks = 0;
   for (size_t r = 1; r < runs.size(); ++r) breaks += runs[r].at->id < (runs[r - 1].end - 1)->id;
-  const bool reordered = breaks > 0;
   auto by_id = [](const Record& a, const Record& b) { return a.id < b.id; };
   if ((breaks > max_breaks || runs.size() > max_runs) && frames.size() == 1) {  // sorted where it is
     Record* all = reinterpret_cast<Record*>(frames[0].data());
     job.arena().execute([&] { tbb::parallel_sort(all, all + n, by_id); });
     out.add(all, all + n);
-    return reordered;
+    return Ordering::sorted;
   }
   if (breaks > max_breaks || runs.size() > max_runs) {  // gathered (each frame freed once copied) and sorted
     UninitializedVector<Record> all(n);
@@ -393,7 +394,7 @@ bool merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& 
     }
     job.arena().execute([&] { tbb::parallel_sort(all.begin(), all.end(), by_id); });
     out.add(all.data(), all.data() + n);
-    return reordered;
+    return Ordering::sorted;
   }
   while (!runs.empty()) {
     size_t best = 0;
@@ -413,13 +414,14 @@ bool merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& 
     run.at = stop;
     if (run.at == run.end) runs.erase(runs.begin() + int64_t(best));
   }
-  return reordered;
+  return breaks > 0 ? Ordering::merged : Ordering::already;
 }
 
 struct FaceIdOrderStats {
   uint64_t written = 0;
   uint64_t groups = 0;  // stream items: one per block unless a block was too large
-  uint64_t sorted = 0;  // groups that were not in face-id order already
+  uint64_t merged = 0;  // groups that were a few runs in id order, merged
+  uint64_t sorted = 0;  // groups of many runs, sorted
 };
 
 FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, LoadedMesh& mesh,
@@ -437,14 +439,14 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
   auto merge = [&](std::vector<Bytes>& frames, OutputPieces& out) {
     out.ply = ply;
     out.piece_faces = (2u << 20) / out.bytes_per_face();
-    const bool reordered = record == id_triangle32_record_size ? merge_in_face_id_order<IdTriangle32>(job, frames, out)
-                                                               : merge_in_face_id_order<IdTriangle64>(job, frames, out);
+    const Ordering ordering = record == id_triangle32_record_size ? merge_in_face_id_order<IdTriangle32>(job, frames, out)
+                                                                  : merge_in_face_id_order<IdTriangle64>(job, frames, out);
     frames = {};
     out.finish();
-    return reordered;
+    return ordering;
   };
   // Output pieces to the I/O thread, in order, each with its part of `lease`.
-  auto submit = [&](OutputPieces& out, bool reordered, Lease& lease) {
+  auto submit = [&](OutputPieces& out, Ordering ordering, Lease& lease) {
     for (size_t p = 0; p < out.pieces.size(); ++p) {
       Lease piece_lease = lease.split(std::min<uint64_t>(lease.bytes(), out.pieces[p].capacity()));
       if (ply) {
@@ -456,7 +458,8 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
       stats.written += out.faces[p];
     }
     ++stats.groups;
-    stats.sorted += reordered;
+    stats.merged += ordering == Ordering::merged;
+    stats.sorted += ordering == Ordering::sorted;
     job.progress(0.9 + 0.1 * double(stats.written) / double(std::max<uint64_t>(mesh.face_count, 1)), "write");
   };
 
@@ -465,7 +468,7 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
     uint32_t cell = 0;
     std::vector<std::pair<std::array<std::byte, frame_header_bytes>, Bytes>> encoded;
     OutputPieces out;
-    bool reordered = false;
+    Ordering ordering = Ordering::already;
   };
   auto write_whole_blocks = [&](uint32_t first, uint32_t end) {
     uint32_t next = first;
@@ -508,9 +511,9 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
       }
       item.encoded = {};
       if (faces != mesh.block_faces[item.cell]) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
-      item.reordered = merge(frames, item.out);
+      item.ordering = merge(frames, item.out);
     };
-    pass.sink = [&](BlockItem& item, Lease& lease) { submit(item.out, item.reordered, lease); };
+    pass.sink = [&](BlockItem& item, Lease& lease) { submit(item.out, item.ordering, lease); };
     run_stream_pass(job, pass);
   };
 
@@ -574,8 +577,8 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
           0);
       if (at != group[0].size()) throw Error(ErrorKind::internal, "a block holds fewer faces than it counted");
       OutputPieces out;
-      const bool reordered = merge(group, out);
-      submit(out, reordered, lease);
+      const Ordering ordering = merge(group, out);
+      submit(out, ordering, lease);
     }
   };
 
@@ -770,7 +773,8 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["block_record_bytes"] = mesh.block_record_size;
     result.report["spanning_faces"] = mesh.corner_faces;
     result.report["block_groups"] = in_order.groups;  // out of core: buffers put in face-id order
-    result.report["block_groups_sorted"] = in_order.sorted;  // of them, those that were out of order
+    result.report["block_groups_merged"] = in_order.merged;  // of them: a few runs in id order, merged
+    result.report["block_groups_sorted"] = in_order.sorted;  // many runs, sorted
     report_scratch(result.report, scratch);
     result.report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
     result.report["input_bytes"] = input_bytes;
