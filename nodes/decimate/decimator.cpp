@@ -90,6 +90,27 @@ void parallel_over(size_t n, F&& body, size_t grain = 1024) {
                     });
 }
 
+// The first j < n with value(j) == x, or kNone. A fan has a handful of neighbours: a
+// branch-free scan beats an early exit whose branch mispredicts.
+template <class Value>
+uint32_t first_match(uint32_t n, uint32_t x, Value&& value) {
+  uint32_t found = kNone;
+  for (uint32_t j = n; j-- > 0;) found = value(j) == x ? j : found;
+  return found;
+}
+
+// parallel_over with one thread-local Scratch per range (looked up once per range, not
+// per element).
+template <class S, class F>
+void parallel_over_with(size_t n, tbb::enumerable_thread_specific<S>& scratch, F&& body,
+                        size_t grain = 1024) {
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, grain),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      S& s = scratch.local();
+                      for (size_t i = r.begin(); i != r.end(); ++i) body(i, s);
+                    });
+}
+
 // Sorted (neighbor, number of faces shared with v) of a vertex, from its faces.
 void neighbor_counts(uint32_t v, const std::vector<uint32_t>& faces,
                      const std::vector<std::array<uint32_t, 3>>& fv,
@@ -137,7 +158,6 @@ struct PatchDecimator::Scratch {
   };
   std::vector<Option> options;
   std::vector<FanEdge> fan;
-  std::vector<Triangle3> moved;  // deviation(): the collapsed fan
   std::vector<double> areas;
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
 };
@@ -248,7 +268,7 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
   if (untrusted_count_ > 0) untrusted_distances(kBestRadius, dist);
   std::vector<uint8_t> restored(pos_.size(), 0);
   tbb::enumerable_thread_specific<Scratch> scratch;
-  parallel_over(pos_.size(), [&](size_t vi) {
+  parallel_over_with(pos_.size(), scratch, [&](size_t vi, Scratch& s) {
     const uint32_t v = static_cast<uint32_t>(vi);
     const uint64_t gid = gids[v];
     if (gid == kBestUnknown || (!dist.empty() && dist[v] <= kBestRadius)) return;
@@ -268,7 +288,7 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
     best_cost_[v] = best == kNone ? 0.0 : costs[v];
     dirty_[v] = 0;
     touched_[v] = 0;
-    update_border(v, scratch.local());
+    update_border(v, s);
     restored[v] = 1;
   });
   // partner_ for pairs of restored vertices; the first prepare's update_partners pairs
@@ -322,10 +342,9 @@ void PatchDecimator::gather_faces(uint32_t v, std::vector<uint32_t>& out) const 
 
 void PatchDecimator::lock_nonmanifold_vertices() {
   tbb::enumerable_thread_specific<Scratch> scratch;
-  parallel_over(pos_.size(), [&](size_t vi) {
+  parallel_over_with(pos_.size(), scratch, [&](size_t vi, Scratch& s) {
     const uint32_t v = static_cast<uint32_t>(vi);
     if (vflag_[v] & kLocked) return;
-    Scratch& s = scratch.local();
     gather_faces(v, s.faces);
     if (s.faces.empty()) return;
     neighbor_counts(v, s.faces, fv_, s.others, s.na);
@@ -363,9 +382,8 @@ void PatchDecimator::lock_nonmanifold_vertices() {
 void PatchDecimator::compute_quadrics() {
   quadric_.assign(pos_.size(), Quadric{});
   tbb::enumerable_thread_specific<Scratch> scratch;
-  parallel_over(pos_.size(), [&](size_t vi) {
+  parallel_over_with(pos_.size(), scratch, [&](size_t vi, Scratch& s) {
     const uint32_t v = static_cast<uint32_t>(vi);
-    Scratch& s = scratch.local();
     gather_faces(v, s.faces);  // ascending face order == ascending global face id
     Quadric q;
     for (uint32_t f : s.faces) {
@@ -415,8 +433,8 @@ EdgeKey PatchDecimator::lme_key(uint32_t v) const {
   return EdgeKey::of(best_cost_[v], vgid_[v], vgid_[w]);
 }
 
-bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, uint32_t b,
-                                    const Vec3& p, Scratch& s) const {
+bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corners_a,
+                                    std::span<const FanEdge> fan_a, uint32_t b, const Vec3& p) const {
   // a and b are unlocked, hence manifold: every edge at them has one or two faces.
   // Called in prepare_round, when every list is compact (live faces only).
   const std::span<const uint32_t> corners_b = corners_of(b);
@@ -433,22 +451,21 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
   if (corners_a.size() + corners_b.size() == 2u * shared) return false;  // would erase a component
   // An interior edge joining two border vertices would pinch the surface.
   if (shared == 2 && (vflag_[a] & kBorder) && (vflag_[b] & kBorder)) return false;
-  // Link condition: no common neighbour besides the opposite vertices...
-  std::vector<uint32_t>& around_a = s.others;
-  around_a.clear();
-  for (uint32_t c : corners_a) {
-    const auto& t = fv_[c / 3];
-    const uint32_t slot = c % 3;
-    around_a.push_back(t[(slot + 1) % 3]);
-    around_a.push_back(t[(slot + 2) % 3]);
-  }
+  // Link condition: no common neighbour besides the opposite vertices... A vertex's
+  // neighbours are the vertices after it in its faces, and the ones before it too
+  // when it is on the border (off the border every one before is one after: that is
+  // the kBorder flag, up to date for every unlocked live vertex here). fan_a lists
+  // a's neighbours (fan_neighbors: the same rule).
+  const uint32_t n_a = static_cast<uint32_t>(fan_a.size());
+  const bool b_border = (vflag_[b] & kBorder) != 0;
+  auto common = [&](uint32_t x) {
+    if (x == a || x == opposite[0] || (shared == 2 && x == opposite[1])) return false;
+    return first_match(n_a, x, [&](uint32_t j) { return fan_a[j].other; }) != kNone;
+  };
   for (uint32_t c : corners_b) {
     const auto& t = fv_[c / 3];
     const uint32_t slot = c % 3;
-    for (uint32_t x : {t[(slot + 1) % 3], t[(slot + 2) % 3]}) {
-      if (x == a || x == opposite[0] || (shared == 2 && x == opposite[1])) continue;
-      if (std::find(around_a.begin(), around_a.end(), x) != around_a.end()) return false;
-    }
+    if (common(t[(slot + 1) % 3]) || (b_border && common(t[(slot + 2) % 3]))) return false;
   }
   // ...and the links of a and b share no edge (a tetrahedron-like pocket).
   if (shared == 2) {
@@ -557,7 +574,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       checked = true;
       // The same function of the same inputs as quadric_cost's position: the same bits.
       const Vec3 p = o.has_position ? o.position : edge_position(v, o.other);
-      if (collapse_valid(v, corners, o.other, p, s)) {
+      if (collapse_valid(v, corners, s.fan, o.other, p)) {
         best_[v] = o.other;
         best_cost_[v] = o.key.cost;
         return;
@@ -629,7 +646,7 @@ double PatchDecimator::deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch&
   // each endpoint's area is summed in ascending order of the face areas (the fan's
   // nearest distance is a minimum: no order). The sum is cached per vertex
   // (face_area_) until prepare() finds the vertex touched.
-  s.moved.clear();
+  FanDeviation fan(pos_[a], pos_[b]);
   double area[2] = {0.0, 0.0};
   for (int side = 0; side < 2; ++side) {
     const uint32_t x = side == 0 ? a : b, other = side == 0 ? b : a;
@@ -644,9 +661,9 @@ double PatchDecimator::deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch&
         s.areas.push_back(0.5 * std::sqrt(dot(n, n)));
       }
       if (contains(t, other)) continue;  // removed by the collapse
-      Triangle3 moved;
-      for (int k = 0; k < 3; ++k) moved[k] = (t[k] == a || t[k] == b) ? p : pos_[t[k]];
-      s.moved.push_back(moved);
+      // The face moved to the collapse: x (at slot c % 3; `other` is not in it) at p.
+      const uint32_t slot = c % 3;
+      fan.add(slot == 0 ? p : pos_[t[0]], slot == 1 ? p : pos_[t[1]], slot == 2 ? p : pos_[t[2]]);
     }
     if (sum_areas) {
       std::sort(s.areas.begin(), s.areas.end());
@@ -655,7 +672,7 @@ double PatchDecimator::deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch&
       cached.store(area[side], std::memory_order_relaxed);
     }
   }
-  return collapse_deviation(pos_[a], area[0], pos_[b], area[1], s.moved);
+  return fan.charge(area[0], area[1]);
 }
 
 void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners,
@@ -667,14 +684,14 @@ void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners
   // cache the edge's cost.
   out.clear();
   for (uint32_t c : corners) out.push_back({fv_[c / 3][(c % 3 + 1) % 3], c, kNone});
-  const size_t n = out.size();
+  const uint32_t n = static_cast<uint32_t>(out.size());
   const bool border = (vflag_[v] & kBorder) != 0;
   for (uint32_t c : corners) {
     const uint32_t f = c / 3, slot = (c % 3 + 2) % 3;  // the vertex before v
     const uint32_t prev = fv_[f][slot];
-    auto it = std::find_if(out.begin(), out.begin() + n, [&](const FanEdge& x) { return x.other == prev; });
-    if (it != out.begin() + n)
-      it->twin = 3 * f + slot;
+    const uint32_t at = first_match(n, prev, [&](uint32_t j) { return out[j].other; });
+    if (at != kNone)
+      out[at].twin = 3 * f + slot;
     else if (border)
       out.push_back({prev, 3 * f + slot, kNone});
   }
@@ -688,9 +705,10 @@ void PatchDecimator::update_border(uint32_t v, Scratch& s) {
   s.others.clear();
   for (uint32_t c : corners) s.others.push_back(fv_[c / 3][(c % 3 + 1) % 3]);
   bool border = false;
+  const uint32_t n = static_cast<uint32_t>(s.others.size());
   for (uint32_t c : corners) {
     const uint32_t prev = fv_[c / 3][(c % 3 + 2) % 3];
-    border |= std::find(s.others.begin(), s.others.end(), prev) == s.others.end();
+    border |= first_match(n, prev, [&](uint32_t j) { return s.others[j]; }) == kNone;
   }
   vflag_[v] = static_cast<uint8_t>(border ? (vflag_[v] | kBorder) : (vflag_[v] & ~kBorder));
 }
@@ -770,14 +788,14 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   // Touched vertices (the last collapses' first rings; only they can have lost a face):
   // compact their lists, update their border flags, and mark them and their second
   // ring dirty (edges to a touched vertex may have changed validity).
-  parallel_over(nv, [&](size_t vi) {
+  parallel_over_with(nv, scratch, [&](size_t vi, Scratch& s) {
     if (!touched_[vi]) return;
     const uint32_t v = static_cast<uint32_t>(vi);
     compact_list(v);
     // v's faces, or a vertex of one of them, changed (a collapse touches its kept
     // vertex's whole first ring): the area of v's faces is to be summed again.
     face_area_[v] = kUnknownCost;
-    update_border(v, scratch.local());
+    update_border(v, s);
     raise_flag(dirty_[v]);
     for (uint32_t c : corners_of(v)) {
       for (uint32_t x : fv_[c / 3]) raise_dirty(dirty_[x]);
@@ -799,7 +817,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   std::atomic<bool> deferred{false};
   // The dirty vertices: every vertex with dirty_ != 0 now (the loop below leaves it
   // non-zero, 1 or stale, at each of them, and writes no other vertex's).
-  parallel_over(nv, [&](size_t vi) {
+  parallel_over_with(nv, scratch, [&](size_t vi, Scratch& s) {
     if (!dirty_[vi]) return;
     const uint32_t v = static_cast<uint32_t>(vi);
     // A stale vertex has no cached best.
@@ -812,7 +830,6 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
         (keep_stale || cut->cost < best_cost_[v]))
       return;
     dirty_[v] = 1;
-    Scratch& s = scratch.local();
     ++s.refreshed;
     refresh_best(v, s, !touched_[v] && !stale, cut);
     if (dirty_[v] == kDirtyStale && !deferred.load(std::memory_order_relaxed))

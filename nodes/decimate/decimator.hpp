@@ -300,8 +300,9 @@ class PatchDecimator {
   double edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin, double quadric,
                    const Vec3& position, Scratch& s);
   double deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const;
-  bool collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, uint32_t b, const Vec3& p,
-                      Scratch& s) const;
+  // fan_a: fan_neighbors(a, corners_a).
+  bool collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, std::span<const FanEdge> fan_a,
+                      uint32_t b, const Vec3& p) const;
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
   EdgeKey lme_key(uint32_t v) const;

@@ -88,7 +88,11 @@ Vec3 collapse_position(const Quadric& Q, const Vec3& lo, const Vec3& hi) {
   return {x[0], x[1], x[2]};
 }
 
-double point_triangle_distance2(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c) {
+namespace {
+
+// point_triangle_distance2 given the edge vectors ab = b - a and ac = c - a.
+inline double distance2_with_edges(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c,
+                                   const Vec3& ab, const Vec3& ac) {
   // Ericson, Real-Time Collision Detection 5.1.5: the Voronoi region of x decides
   // which feature (vertex, edge, face) is closest.
   auto at = [](const Vec3& o, const Vec3& u, double s, const Vec3& v, double t) {
@@ -98,7 +102,7 @@ double point_triangle_distance2(const Vec3& x, const Vec3& a, const Vec3& b, con
     const Vec3 d = sub(x, y);
     return dot(d, d);
   };
-  const Vec3 ab = sub(b, a), ac = sub(c, a), ax = sub(x, a);
+  const Vec3 ax = sub(x, a);
   const double d1 = dot(ab, ax), d2 = dot(ac, ax);
   if (d1 <= 0.0 && d2 <= 0.0) return dist2(a);
   const Vec3 bx = sub(x, b);
@@ -121,15 +125,31 @@ double point_triangle_distance2(const Vec3& x, const Vec3& a, const Vec3& b, con
   return dist2(at(a, ab, vb / sum, ac, vc / sum));
 }
 
+}  // namespace
+
+double point_triangle_distance2(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c) {
+  return distance2_with_edges(x, a, b, c, sub(b, a), sub(c, a));
+}
+
+void FanDeviation::add(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
+  const Vec3 e1 = sub(p1, p0), e2 = sub(p2, p0);
+  const double da = distance2_with_edges(a_, p0, p1, p2, e1, e2);
+  const double db = distance2_with_edges(b_, p0, p1, p2, e1, e2);
+  nearest_a_ = std::min(nearest_a_, da);  // std::min: a NaN distance is never kept
+  nearest_b_ = std::min(nearest_b_, db);
+  empty_ = false;
+}
+
+double FanDeviation::charge(double area_a, double area_b) const {
+  if (empty_) return 0.0;
+  return area_a / 3.0 * nearest_a_ + area_b / 3.0 * nearest_b_;
+}
+
 double collapse_deviation(const Vec3& a, double area_a, const Vec3& b, double area_b,
                           std::span<const Triangle3> fan) {
-  if (fan.empty()) return 0.0;
-  double nearest_a = std::numeric_limits<double>::infinity(), nearest_b = nearest_a;
-  for (const Triangle3& t : fan) {
-    nearest_a = std::min(nearest_a, point_triangle_distance2(a, t[0], t[1], t[2]));
-    nearest_b = std::min(nearest_b, point_triangle_distance2(b, t[0], t[1], t[2]));
-  }
-  return area_a / 3.0 * nearest_a + area_b / 3.0 * nearest_b;
+  FanDeviation deviation(a, b);
+  for (const Triangle3& t : fan) deviation.add(t[0], t[1], t[2]);
+  return deviation.charge(area_a, area_b);
 }
 
 }  // namespace qemflow::nodes

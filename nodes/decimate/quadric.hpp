@@ -7,6 +7,7 @@
 // canonical order (see decimator.hpp); addition of two quadrics is commutative in
 // IEEE arithmetic, so Q_a + Q_b == Q_b + Q_a bit for bit.
 #include <array>
+#include <limits>
 #include <span>
 
 namespace qemflow::nodes {
@@ -59,5 +60,22 @@ using Triangle3 = std::array<Vec3, 3>;
 // surface moves; this term prices the move of the surface the current mesh stands for.
 double collapse_deviation(const Vec3& a, double area_a, const Vec3& b, double area_b,
                           std::span<const Triangle3> fan);
+
+// collapse_deviation fed one triangle at a time, so a caller walking its mesh needs no
+// copy of the fan. Each triangle's two distances are point_triangle_distance2's bits
+// (its edge vectors are shared by both points, the same differences either way); the
+// nearest distances are minima, so the order of the triangles does not matter.
+class FanDeviation {
+ public:
+  FanDeviation(const Vec3& a, const Vec3& b) : a_(a), b_(b) {}
+  void add(const Vec3& p0, const Vec3& p1, const Vec3& p2);
+  // collapse_deviation(a, area_a, b, area_b, the triangles added).
+  double charge(double area_a, double area_b) const;
+
+ private:
+  Vec3 a_, b_;
+  double nearest_a_ = std::numeric_limits<double>::infinity(), nearest_b_ = nearest_a_;
+  bool empty_ = true;
+};
 
 }  // namespace qemflow::nodes

@@ -1,0 +1,127 @@
+// The decimator's speed-ups keep every bit of its output: the rewritten kernels give the
+// same doubles as the formulas they replaced, on random inputs that reach every branch.
+// The references below are the replaced code, verbatim (decimator.hpp's contract: any
+// reformulation of the arithmetic would change the output).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "nodes/decimate/quadric.hpp"
+
+namespace qemflow::nodes {
+namespace {
+
+Vec3 sub(const Vec3& a, const Vec3& b) { return {a[0] - b[0], a[1] - b[1], a[2] - b[2]}; }
+double dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+// point_triangle_distance2 as it was before FanDeviation shared its edge vectors.
+double reference_distance2(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c) {
+  auto at = [](const Vec3& o, const Vec3& u, double s, const Vec3& v, double t) {
+    return Vec3{o[0] + s * u[0] + t * v[0], o[1] + s * u[1] + t * v[1], o[2] + s * u[2] + t * v[2]};
+  };
+  auto dist2 = [&](const Vec3& y) {
+    const Vec3 d = sub(x, y);
+    return dot(d, d);
+  };
+  const Vec3 ab = sub(b, a), ac = sub(c, a), ax = sub(x, a);
+  const double d1 = dot(ab, ax), d2 = dot(ac, ax);
+  if (d1 <= 0.0 && d2 <= 0.0) return dist2(a);
+  const Vec3 bx = sub(x, b);
+  const double d3 = dot(ab, bx), d4 = dot(ac, bx);
+  if (d3 >= 0.0 && d4 <= d3) return dist2(b);
+  const double vc = d1 * d4 - d3 * d2;
+  if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return dist2(at(a, ab, d1 / (d1 - d3), ac, 0.0));
+  const Vec3 cx = sub(x, c);
+  const double d5 = dot(ab, cx), d6 = dot(ac, cx);
+  if (d6 >= 0.0 && d5 <= d6) return dist2(c);
+  const double vb = d5 * d2 - d1 * d6;
+  if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return dist2(at(a, ab, 0.0, ac, d2 / (d2 - d6)));
+  const double va = d3 * d6 - d5 * d4;
+  if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) {
+    const Vec3 bc = sub(c, b);
+    return dist2(at(b, bc, (d4 - d3) / ((d4 - d3) + (d5 - d6)), bc, 0.0));
+  }
+  const double sum = va + vb + vc;
+  if (!(sum > 0.0)) return std::min({dist2(a), dist2(b), dist2(c)});
+  return dist2(at(a, ab, vb / sum, ac, vc / sum));
+}
+
+// collapse_deviation as it was: over a copied fan, one distance call per point.
+double reference_deviation(const Vec3& a, double area_a, const Vec3& b, double area_b,
+                           const std::vector<Triangle3>& fan) {
+  if (fan.empty()) return 0.0;
+  double nearest_a = std::numeric_limits<double>::infinity(), nearest_b = nearest_a;
+  for (const Triangle3& t : fan) {
+    nearest_a = std::min(nearest_a, reference_distance2(a, t[0], t[1], t[2]));
+    nearest_b = std::min(nearest_b, reference_distance2(b, t[0], t[1], t[2]));
+  }
+  return area_a / 3.0 * nearest_a + area_b / 3.0 * nearest_b;
+}
+
+uint64_t bits(double x) { return std::bit_cast<uint64_t>(x); }
+
+// A fan around a centre like the decimator's moved fans: every triangle shares the
+// collapse position p; the ring is jittered off its plane, sometimes degenerate.
+struct RandomFan {
+  Vec3 a, b;
+  std::vector<Triangle3> triangles;
+};
+RandomFan random_fan(std::mt19937& rng) {
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  auto near = [&](const Vec3& c, double r) { return Vec3{c[0] + r * unit(rng), c[1] + r * unit(rng), c[2] + r * unit(rng)}; };
+  const Vec3 centre{100.0 * unit(rng), 100.0 * unit(rng), 100.0 * unit(rng)};  // away from 0: rounding
+  const Vec3 p = near(centre, 0.1);
+  RandomFan fan{near(p, 1.0), near(p, 1.0), {}};
+  const int n = 3 + static_cast<int>(rng() % 10);
+  std::vector<Vec3> ring;
+  for (int i = 0; i < n; ++i) {
+    const double t = 2 * M_PI * i / n;
+    ring.push_back({p[0] + std::cos(t), p[1] + std::sin(t), p[2] + 0.3 * unit(rng)});
+  }
+  if (rng() % 4 == 0) ring[1] = ring[0];                    // a zero-length edge
+  if (rng() % 4 == 0) ring[2] = {p[0], p[1], p[2]};         // a degenerate triangle at p
+  for (int i = 0; i < n; ++i) {
+    // p at any slot: the decimator's moved faces keep their vertex order.
+    Triangle3 t{p, ring[i], ring[(i + 1) % n]};
+    std::rotate(t.begin(), t.begin() + rng() % 3, t.end());
+    fan.triangles.push_back(t);
+  }
+  return fan;
+}
+
+TEST(DecimateKernels, PointTriangleDistanceIsTheReplacedFormulaBitForBit) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> unit(-2.0, 2.0);
+  for (int i = 0; i < 200000; ++i) {
+    std::array<Vec3, 4> v;
+    for (auto& q : v) q = {unit(rng), unit(rng), unit(rng)};
+    if (i % 7 == 0) v[3] = v[2];  // degenerate
+    if (i % 11 == 0) v[2] = {0.5 * (v[1][0] + v[3][0]), 0.5 * (v[1][1] + v[3][1]), 0.5 * (v[1][2] + v[3][2])};
+    ASSERT_EQ(bits(point_triangle_distance2(v[0], v[1], v[2], v[3])),
+              bits(reference_distance2(v[0], v[1], v[2], v[3])))
+        << "case " << i;
+  }
+}
+
+TEST(DecimateKernels, FanDeviationIsTheCopiedFanChargeBitForBit) {
+  std::mt19937 rng(11);
+  for (int i = 0; i < 20000; ++i) {
+    const RandomFan fan = random_fan(rng);
+    const double area_a = 0.1 + (rng() % 1000) * 1e-3, area_b = 0.1 + (rng() % 1000) * 1e-3;
+    FanDeviation deviation(fan.a, fan.b);
+    for (const auto& t : fan.triangles) deviation.add(t[0], t[1], t[2]);
+    const double expected = reference_deviation(fan.a, area_a, fan.b, area_b, fan.triangles);
+    ASSERT_EQ(bits(deviation.charge(area_a, area_b)), bits(expected)) << "case " << i;
+    ASSERT_EQ(bits(collapse_deviation(fan.a, area_a, fan.b, area_b, fan.triangles)), bits(expected));
+  }
+  EXPECT_EQ(FanDeviation({0, 0, 0}, {1, 0, 0}).charge(1.0, 1.0), 0.0);  // no fan: no charge
+}
+
+}  // namespace
+}  // namespace qemflow::nodes
