@@ -46,7 +46,7 @@ Vec3 cross(const Vec3& a, const Vec3& b) {
   return {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
 }
 double dot(const Vec3& a, const Vec3& b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-Vec3 triangle_normal(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
+[[gnu::always_inline]] inline Vec3 triangle_normal(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
   return cross(sub(p1, p0), sub(p2, p0));
 }
 // |cross| / (longest edge)^2: about the sine of the smallest angle; 0 when degenerate.
@@ -90,13 +90,15 @@ void parallel_over(size_t n, F&& body, size_t grain = 1024) {
                     });
 }
 
-// The first j < n with value(j) == x, or kNone. A fan has a handful of neighbours: a
-// branch-free scan beats an early exit whose branch mispredicts.
-template <class Value>
-uint32_t first_match(uint32_t n, uint32_t x, Value&& value) {
-  uint32_t found = kNone;
-  for (uint32_t j = n; j-- > 0;) found = value(j) == x ? j : found;
-  return found;
+// Slot of the vertex after / before slot k in a face.
+constexpr uint32_t kNextSlot[3] = {1, 2, 0};
+constexpr uint32_t kPrevSlot[3] = {2, 0, 1};
+
+// The first i < n with list[i] == x, or n. Fans are short: a plain scan.
+uint32_t index_of(const uint32_t* list, uint32_t n, uint32_t x) {
+  uint32_t i = 0;
+  while (i < n && list[i] != x) ++i;
+  return i;
 }
 
 // parallel_over with one thread-local Scratch per range (looked up once per range, not
@@ -158,6 +160,7 @@ struct PatchDecimator::Scratch {
   };
   std::vector<Option> options;
   std::vector<FanEdge> fan;
+  std::vector<uint32_t> next, prev;  // fan_links()
   std::vector<double> areas;
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
 };
@@ -460,7 +463,9 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
   const bool b_border = (vflag_[b] & kBorder) != 0;
   auto common = [&](uint32_t x) {
     if (x == a || x == opposite[0] || (shared == 2 && x == opposite[1])) return false;
-    return first_match(n_a, x, [&](uint32_t j) { return fan_a[j].other; }) != kNone;
+    for (uint32_t j = 0; j < n_a; ++j)
+      if (fan_a[j].other == x) return true;
+    return false;
   };
   for (uint32_t c : corners_b) {
     const auto& t = fv_[c / 3];
@@ -521,7 +526,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   }
   // prepare_round compacted every list that lost a face: all are live here.
   const std::span<const uint32_t> corners = corners_of(v);
-  fan_neighbors(v, corners, s.fan);
+  fan_neighbors(v, corners, s);
   s.options.clear();
   const bool charged = params_.deviation_weight > 0.0;
   for (const auto& [w, corner, twin] : s.fan) {
@@ -585,7 +590,8 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   }
 }
 
-PatchDecimator::CachedCost PatchDecimator::cached_cost(uint32_t v, uint32_t w, uint32_t corner,
+// Inlined into refresh_best, its only caller (a call per edge was a tenth of its cost).
+[[gnu::always_inline]] inline PatchDecimator::CachedCost PatchDecimator::cached_cost(uint32_t v, uint32_t w, uint32_t corner,
                                                        uint32_t twin) const {
   // The cost depends only on both endpoints' quadrics, positions and faces (with their
   // vertices' positions); its quadric part only on the quadrics and positions.
@@ -675,25 +681,39 @@ double PatchDecimator::deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch&
   return fan.charge(area[0], area[1]);
 }
 
-void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners,
-                                   std::vector<FanEdge>& out) const {
+void PatchDecimator::fan_links(std::span<const uint32_t> corners, Scratch& s) const {
+  const size_t n = corners.size();
+  if (s.next.size() < n) {  // only grows: resize() is a call even when the size is right
+    s.next.resize(n);
+    s.prev.resize(n);
+  }
+  for (size_t i = 0; i < n; ++i) {
+    const uint32_t c = corners[i], slot = c % 3;
+    const auto& t = fv_[c / 3];
+    s.next[i] = t[kNextSlot[slot]];
+    s.prev[i] = t[kPrevSlot[slot]];
+  }
+}
+
+void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners, Scratch& s) const {
   // v is unlocked: one consistently oriented fan, so the vertex after v in each face
   // lists every neighbour once, except the first one of a border fan. Each comes with
   // the corner whose edge (corner vertex -> next vertex) joins it to v, and the twin
   // corner of the same edge in the face on its other side (w -> v), if any: both
   // cache the edge's cost.
+  fan_links(corners, s);
+  const uint32_t n = static_cast<uint32_t>(corners.size());
+  std::vector<FanEdge>& out = s.fan;
   out.clear();
-  for (uint32_t c : corners) out.push_back({fv_[c / 3][(c % 3 + 1) % 3], c, kNone});
-  const uint32_t n = static_cast<uint32_t>(out.size());
+  for (uint32_t i = 0; i < n; ++i) out.push_back({s.next[i], corners[i], kNone});
   const bool border = (vflag_[v] & kBorder) != 0;
-  for (uint32_t c : corners) {
-    const uint32_t f = c / 3, slot = (c % 3 + 2) % 3;  // the vertex before v
-    const uint32_t prev = fv_[f][slot];
-    const uint32_t at = first_match(n, prev, [&](uint32_t j) { return out[j].other; });
-    if (at != kNone)
-      out[at].twin = 3 * f + slot;
+  for (uint32_t i = 0; i < n; ++i) {
+    const uint32_t c = corners[i], before = c - c % 3 + kPrevSlot[c % 3];  // prev -> v
+    const uint32_t at = index_of(s.next.data(), n, s.prev[i]);
+    if (at != n)
+      out[at].twin = before;
     else if (border)
-      out.push_back({prev, 3 * f + slot, kNone});
+      out.push_back({s.prev[i], before, kNone});
   }
 }
 
@@ -702,14 +722,10 @@ void PatchDecimator::update_border(uint32_t v, Scratch& s) {
   // v is unlocked (one consistently oriented fan): it is on the border iff the vertex
   // before v in some face is not the vertex after v in any face. v's list is compact.
   const std::span<const uint32_t> corners = corners_of(v);
-  s.others.clear();
-  for (uint32_t c : corners) s.others.push_back(fv_[c / 3][(c % 3 + 1) % 3]);
+  fan_links(corners, s);
+  const uint32_t n = static_cast<uint32_t>(corners.size());
   bool border = false;
-  const uint32_t n = static_cast<uint32_t>(s.others.size());
-  for (uint32_t c : corners) {
-    const uint32_t prev = fv_[c / 3][(c % 3 + 2) % 3];
-    border |= first_match(n, prev, [&](uint32_t j) { return s.others[j]; }) == kNone;
-  }
+  for (uint32_t i = 0; i < n && !border; ++i) border = index_of(s.next.data(), n, s.prev[i]) == n;
   vflag_[v] = static_cast<uint8_t>(border ? (vflag_[v] | kBorder) : (vflag_[v] & ~kBorder));
 }
 

@@ -284,7 +284,10 @@ class PatchDecimator {
   void prepare(const EdgeKey* cut);
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut);
   void update_border(uint32_t v, Scratch& s);
-  void fan_neighbors(uint32_t v, std::span<const uint32_t> corners, std::vector<FanEdge>& out) const;
+  // s.fan: v's neighbours with their corners (s.next / s.prev from fan_links).
+  void fan_neighbors(uint32_t v, std::span<const uint32_t> corners, Scratch& s) const;
+  // s.next / s.prev: the vertex after / before the corner's vertex, for each corner.
+  void fan_links(std::span<const uint32_t> corners, Scratch& s) const;
   // The cached cost of edge (v, w) at `corner` (v's) and `twin` (w's, or kNone):
   // `cost` is the full cost when `full`, else its quadric part (a lower bound) or NaN.
   struct CachedCost {

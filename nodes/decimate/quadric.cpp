@@ -90,8 +90,9 @@ Vec3 collapse_position(const Quadric& Q, const Vec3& lo, const Vec3& hi) {
 
 namespace {
 
-// point_triangle_distance2 given the edge vectors ab = b - a and ac = c - a.
-inline double distance2_with_edges(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c,
+// point_triangle_distance2 given the edge vectors ab = b - a and ac = c - a. Inlined
+// into both callers (the call was a sixth of its cost); the operations are the same.
+[[gnu::always_inline]] inline double distance2_with_edges(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c,
                                    const Vec3& ab, const Vec3& ac) {
   // Ericson, Real-Time Collision Detection 5.1.5: the Voronoi region of x decides
   // which feature (vertex, edge, face) is closest.
