@@ -95,7 +95,7 @@ RandomFan random_fan(std::mt19937& rng) {
   return fan;
 }
 
-TEST(DecimateKernels, PointTriangleDistanceIsTheReplacedFormulaBitForBit) {
+TEST(DecimateKernels, TriangleDistancesAreTheReplacedFormulaBitForBit) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> unit(-2.0, 2.0);
   for (int i = 0; i < 200000; ++i) {
@@ -103,8 +103,22 @@ TEST(DecimateKernels, PointTriangleDistanceIsTheReplacedFormulaBitForBit) {
     for (auto& q : v) q = {unit(rng), unit(rng), unit(rng)};
     if (i % 7 == 0) v[3] = v[2];  // degenerate
     if (i % 11 == 0) v[2] = {0.5 * (v[1][0] + v[3][0]), 0.5 * (v[1][1] + v[3][1]), 0.5 * (v[1][2] + v[3][2])};
+    // Non-finite coordinates fail every region test: the degenerate branch.
+    if (i % 13 == 0) v[1 + rng() % 3][rng() % 3] = std::numeric_limits<double>::quiet_NaN();
+    if (i % 17 == 0) v[1 + rng() % 3][rng() % 3] = std::numeric_limits<double>::infinity();
+    // Small integers: points on the regions' boundaries (the tests' ties).
+    if (i % 5 == 0)
+      for (auto& q : v)
+        for (double& c : q) c = std::round(c);
     ASSERT_EQ(bits(point_triangle_distance2(v[0], v[1], v[2], v[3])),
               bits(reference_distance2(v[0], v[1], v[2], v[3])))
+        << "case " << i;
+    // FanDeviation's two lanes (a second point in another region of the same triangle).
+    const Vec3 other{unit(rng), unit(rng), unit(rng)};
+    FanDeviation deviation(v[0], other);
+    deviation.add(v[1], v[2], v[3]);
+    ASSERT_EQ(bits(deviation.charge(3.0, 3.0)),
+              bits(reference_deviation(v[0], 3.0, other, 3.0, {{v[1], v[2], v[3]}})))
         << "case " << i;
   }
 }
