@@ -860,13 +860,6 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   for (const Scratch& s : scratch) refreshes_ += s.refreshed;
   bests_exact_ = !cut;
   update_partners();
-  // Touched vertices are dirty too.
-  parallel_over(nv, [&](size_t v) {
-    if (!dirty_[v]) return;
-    dirty_[v] = dirty_[v] >= kDirtyStale ? kDirtyStale : 0;
-    touched_[v] = 0;
-  });
-
   // Candidates are marked (kCandidate at the LME's end with the smaller global id),
   // then gathered at their exact size in vertex order: per-thread lists grown by
   // push_back and then concatenated held about three times the candidates' memory at
@@ -874,6 +867,12 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   // key, and keys of distinct edges differ).
   parallel_over(nv, [&](size_t vi) {
     const uint32_t v = static_cast<uint32_t>(vi);
+    // The round's refreshes are done: clear v's flags (touched vertices are dirty too)
+    // in this sweep rather than one of their own; nothing below reads them.
+    if (dirty_[v]) {
+      dirty_[v] = dirty_[v] >= kDirtyStale ? kDirtyStale : 0;
+      touched_[v] = 0;
+    }
     const uint32_t w = partner_[v];
     if (w == kNone || vgid_[v] > vgid_[w]) return;
     const EdgeKey key = lme_key(v);
