@@ -1,6 +1,8 @@
 #include "engine/process_memory.hpp"
 
 #include <malloc.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include <cstdio>
 #include <cstring>
@@ -41,6 +43,14 @@ void tune_allocator(int trim_threshold) {
 }
 
 void trim_allocator() { malloc_trim(0); }
+
+const void* release_pages(const void* begin, const void* end) {
+  static const uintptr_t page = uintptr_t(sysconf(_SC_PAGESIZE));
+  const uintptr_t from = (uintptr_t(begin) + page - 1) & ~(page - 1), to = uintptr_t(end) & ~(page - 1);
+  if (to <= from) return begin;
+  madvise(reinterpret_cast<void*>(from), to - from, MADV_DONTNEED);  // advice: a failure only keeps the pages
+  return reinterpret_cast<const void*>(to);
+}
 
 uint64_t measure_baseline(uint64_t margin) { return resident_bytes() + margin; }
 

@@ -24,6 +24,13 @@ void tune_allocator(int trim_threshold = 1 << 20);
 // Returns freed heap memory to the OS (malloc_trim); cheap enough between passes.
 void trim_allocator();
 
+// Gives the whole pages inside [begin, end) of a live buffer back to the OS (madvise
+// MADV_DONTNEED: they read as zeros afterwards; the buffer is freed as usual later), so
+// that a buffer converted into another block by block is not resident beside the whole
+// copy. Returns `end` rounded down to a page: the `begin` of the next call when the
+// buffer is released front to back (no page straddling two calls is left behind).
+const void* release_pages(const void* begin, const void* end);
+
 // The process's own footprint to reserve as the governor's baseline: RSS now plus a
 // margin for what grows later without a lease (thread stacks touched by work, zstd
 // contexts, allocator slack, trace buffers). `margin` defaults to 24 MiB.

@@ -738,8 +738,9 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     StageTimer timer(job, "write");
     const bool blocks_in_memory = mesh.blocks_resident();
     write_vertices(job, scratch, mesh, *writer);
-    mesh.vertices.resident = {};
-    mesh.vertices.resident_xyz = {};
+    // Freed (swap), not emptied: `= {}` would keep the capacity resident after the lease.
+    std::vector<Point>().swap(mesh.vertices.resident);
+    UninitializedVector<float>().swap(mesh.vertices.resident_xyz);
     mesh.resident_lease.release();
     FaceIdOrderStats in_order;
     const bool ids_in_blocks = is_id_triangle_record(mesh.block_record_size);

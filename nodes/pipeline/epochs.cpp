@@ -694,6 +694,9 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
     }
     g.vertices[kept++] = g.vertices[i];
   }
+  // The repeated records' pages (a few % of the records) would stay resident behind
+  // the kept ones until the array is freed.
+  engine::release_pages(g.vertices.data() + kept, g.vertices.data() + g.vertices.size());
   g.vertices.resize(kept);
   return g;
 }
@@ -848,53 +851,76 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
 }
 
 // The finish's patch: the whole gathered state as one PatchInput (everything owned,
-// nothing incomplete). Unlike build_patch it needs no fans or BFS, and it releases each
-// gathered array as soon as its part of the input exists, so the finish peaks in the
-// decimator (kInCoreBytesPerFace) rather than here. `g` is consumed.
+// nothing incomplete). Unlike build_patch it needs no fans or BFS. The records are
+// copied block by block, vertices first (the faces need their gids: local index = rank
+// among the sorted, unique gids), and each copied block's pages go back to the OS at
+// once (engine::release_pages), so the records and the input's arrays are never both
+// whole: the build holds about what the gather held (40 B per face record, 136 B per
+// vertex record) plus a block, and the finish peaks in the decimator
+// (kInCoreBytesPerFace). The arrays grow within their reservations (no reallocation),
+// each block's part written as it is made. `g` is consumed.
 PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
+  constexpr size_t kVertexBlock = size_t(1) << 16;  // 8.5 MiB of vertex records
+  constexpr size_t kFaceBlock = size_t(1) << 18;    // 10 MiB of face records
   PatchInput in;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const bool given_quadrics = nv > 0 && g.vertices[0].has_quadric;
-  // Faces first: they need only the vertex gids (local index = rank among the sorted,
-  // unique gids), and the 40-byte face records go before the vertex arrays are made.
-  in.vertex_gids.resize(nv);
-  for (size_t v = 0; v < nv; ++v) in.vertex_gids[v] = g.vertices[v].gid;
-  in.faces.resize(nf);
-  in.face_gids.resize(nf);
-  std::atomic<bool> missing = false;
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t f = range.begin(); f < range.end(); ++f) {
-      in.face_gids[f] = g.faces[f].fid;
-      for (int k = 0; k < 3; ++k) {
-        const uint64_t gid = g.faces[f].v[k];
-        const auto it = std::lower_bound(in.vertex_gids.begin(), in.vertex_gids.end(), gid);
-        if (it == in.vertex_gids.end() || *it != gid) {
-          missing = true;
-          continue;
-        }
-        in.faces[f][k] = uint32_t(it - in.vertex_gids.begin());
-      }
-    }
-  });
-  if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
-  release_memory(g.faces);
-  in.positions.resize(nv);
-  for (size_t v = 0; v < nv; ++v) in.positions[v] = g.vertices[v].position;
+  const bool bests = given_quadrics && carry_bests;
+  in.vertex_gids.reserve(nv);
+  in.positions.reserve(nv);
   if (given_quadrics) {
-    in.locked.resize(nv);
-    for (size_t v = 0; v < nv; ++v) in.locked[v] = g.vertices[v].locked;
-    in.quadrics.resize(nv);
-    for (size_t v = 0; v < nv; ++v) in.quadrics[v] = g.vertices[v].quadric;
-    if (carry_bests) {
-      in.best_gids.resize(nv);
-      in.best_costs.resize(nv);
-      for (size_t v = 0; v < nv; ++v) {
-        in.best_gids[v] = g.vertices[v].best_gid;
-        in.best_costs[v] = g.vertices[v].best_cost;
+    in.locked.reserve(nv);
+    in.quadrics.reserve(nv);
+  }
+  if (bests) {
+    in.best_gids.reserve(nv);
+    in.best_costs.reserve(nv);
+  }
+  const void* released = g.vertices.data();
+  for (size_t begin = 0; begin < nv; begin += kVertexBlock) {
+    const size_t end = std::min(nv, begin + kVertexBlock);
+    for (size_t v = begin; v < end; ++v) {
+      const VertexRecord& r = g.vertices[v];
+      in.vertex_gids.push_back(r.gid);
+      in.positions.push_back(r.position);
+      if (given_quadrics) {
+        in.locked.push_back(r.locked);
+        in.quadrics.push_back(r.quadric);
+      }
+      if (bests) {
+        in.best_gids.push_back(r.best_gid);
+        in.best_costs.push_back(r.best_cost);
       }
     }
+    released = engine::release_pages(released, g.vertices.data() + end);
   }
   release_memory(g.vertices);
+  in.faces.reserve(nf);
+  in.face_gids.reserve(nf);
+  std::atomic<bool> missing = false;
+  released = g.faces.data();
+  for (size_t begin = 0; begin < nf; begin += kFaceBlock) {
+    const size_t end = std::min(nf, begin + kFaceBlock);
+    in.faces.resize(end);
+    in.face_gids.resize(end);
+    tbb::parallel_for(tbb::blocked_range<size_t>(begin, end, 4096), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t f = range.begin(); f < range.end(); ++f) {
+        in.face_gids[f] = g.faces[f].fid;
+        for (int k = 0; k < 3; ++k) {
+          const uint64_t gid = g.faces[f].v[k];
+          const auto it = std::lower_bound(in.vertex_gids.begin(), in.vertex_gids.end(), gid);
+          if (it == in.vertex_gids.end() || *it != gid) {
+            missing = true;
+            continue;
+          }
+          in.faces[f][k] = uint32_t(it - in.vertex_gids.begin());
+        }
+      }
+    });
+    released = engine::release_pages(released, g.faces.data() + end);
+  }
+  if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+  release_memory(g.faces);
   return in;
 }
 
