@@ -4,6 +4,8 @@
 #include <sys/mman.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -26,9 +28,16 @@ uint64_t status_field_kib(const char* field) {
 }  // namespace
 
 uint64_t resident_bytes() { return status_field_kib("VmRSS") * 1024; }
-uint64_t peak_resident_bytes() { return status_field_kib("VmHWM") * 1024; }
+uint64_t window_peak_resident_bytes() { return status_field_kib("VmHWM") * 1024; }
+
+namespace {
+std::atomic<uint64_t> peak_before_reset{0};
+}
+
+uint64_t peak_resident_bytes() { return std::max(peak_before_reset.load(), window_peak_resident_bytes()); }
 
 bool reset_peak_resident() {
+  peak_before_reset.store(peak_resident_bytes());
   FILE* file = std::fopen("/proc/self/clear_refs", "w");
   if (!file) return false;
   bool ok = std::fputs("5", file) >= 0;

@@ -5,10 +5,16 @@
 
 namespace qemflow::engine {
 
-uint64_t resident_bytes();       // VmRSS now
-uint64_t peak_resident_bytes();  // VmHWM: the high-water mark since start (or the last reset)
-// Resets VmHWM to the current RSS (Linux: "5" > /proc/self/clear_refs); false if refused.
+uint64_t resident_bytes();  // VmRSS now
+// The process's high-water mark since start: VmHWM, and what it was before each
+// reset_peak_resident (a reset opens a window; it does not lower this).
+uint64_t peak_resident_bytes();
+// Opens a window: keeps VmHWM for peak_resident_bytes, then resets it to the current
+// RSS (Linux: "5" > /proc/self/clear_refs); false if refused (the window is then the
+// whole run). Not for concurrent use.
 bool reset_peak_resident();
+// VmHWM: the high-water mark since the last reset_peak_resident (or start).
+uint64_t window_peak_resident_bytes();
 
 // Process-wide glibc settings (call once, before the big work; idempotent): a fixed
 // mmap threshold of 4 MiB, so that every big buffer (vertex windows, face ranges) is

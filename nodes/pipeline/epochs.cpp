@@ -1270,6 +1270,8 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   engine::StageTimer timer(job, "in core");
   st.in_core_faces = state->faces;
   runner.index_state(*state);
+  engine::reset_peak_resident();  // the finish's own window (the process's peak is kept)
+  st.in_core_start_rss = engine::resident_bytes();
   Lease lease = job.governor().acquire(job.owner("in core"),
                                        std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
                                        std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
@@ -1293,6 +1295,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
     for (size_t i = 0; i < out.faces.size(); ++i)
       result.triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
   });
+  st.in_core_peak_rss = engine::window_peak_resident_bytes();
   st.output_faces = result.triangles.size();
   st.output_vertices = result.points.size();
   return result;

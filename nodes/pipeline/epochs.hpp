@@ -79,6 +79,10 @@ struct OocStats {
   uint64_t patch_splits = 0;         // a patch part halved because it did not fit its lease
   int max_rings = 0;
   uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)
+  // The process's RSS as the finish starts (before its lease) and its high-water mark
+  // over the finish (gather, build, decimation, extract): what kInCoreBytesPerFace is
+  // checked against.
+  uint64_t in_core_start_rss = 0, in_core_peak_rss = 0;
   uint64_t patch_faces_max = 0;      // largest patch (owned + halo)
   // Summed over the out-of-core patch builds (redos included): faces read by the gathers
   // (owned + every face the box filter kept), faces of the built patches (owned + halo)
@@ -119,20 +123,22 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 // the gather peaks at 132-237 B and the build at 188-274 B per gathered face; the
 // decimator phase holds ~300 B per patch face plus ~20 MB that does not scale with the
 // patch (heap arenas), which the baseline's margin covers. The carried best edge (16 B
-// per vertex record and per PatchInput vertex, ~8 B per face each) added 16. The finish
-// builds its input without the BFS and frees each gathered array as soon as its part
-// of the input exists (build_whole_patch): measured 131 B/face (baseline excluded) at
-// 1.76M faces before the carried bests (`qemflow simplify b2m.ply --clusters 2
-// --in-core-faces 1900000`, VmRSS sampled); with them the 5M blob at 512M peaks at
-// 175 B per finish face above the baseline (441 MB, 2.52M faces; 159 before), at the
-// end of build_whole_patch (the gathered records and the input's vertex arrays alive
-// together). It does not stay that low as the finish grows: 10M faces at 1G peak at
-// 181 B per finish face (5.11M faces), and 50M at 2G at 216-221 (9.43M faces; VmRSS
-// sampled each second: a jump from ~0.75 to 2.07 GB as the finish builds, then ~1.86 GB
-// steady), which left 1.3% of the budget; a finish started just under the threshold
-// would have gone over. Until what grows is found, 240.
+// per vertex record and per PatchInput vertex, ~8 B per face each) added 16.
+// The finish (kInCoreBytesPerFace) peaks in the decimator: its arrays (~131 B per face:
+// 147 B per vertex, 60 per face) while the constructor still holds the input's locks
+// and carried bests, or in the rounds. build_whole_patch copies the gathered records
+// block by block and gives their pages back as it goes, so it holds about what the
+// gather held (~113 B per face: 40-byte face records, 136-byte vertex records, V = F/2,
+// a few % repeated). Measured (VmHWM over the finish above the RSS at its start, report
+// fields in_core_peak_rss_bytes / in_core_start_rss_bytes): 145 B per finish face on
+// the 5M blob at 1G with --in-core-faces 4000000 (3.84M faces), 160 on a 400K blob at
+// 128M with --clusters 2 --in-core-faces 350000 (345K faces; a few MiB of thread
+// scratch and frame buffers that do not scale weigh more). 170 leaves 6% over the
+// smaller, 17% over the larger. (It was 240: 175-221 B had been measured when the build
+// held the records beside the whole input and the loader's vertex positions, 24 B per
+// input vertex, stayed resident after their lease; both fixed.)
 inline constexpr uint64_t kPatchBytesPerFace = 276;
-inline constexpr uint64_t kInCoreBytesPerFace = 240;
+inline constexpr uint64_t kInCoreBytesPerFace = 170;
 
 // The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured
 // baseline), job, scratch, load, simplify_blocks, write (same bytes as --in-core),

@@ -86,6 +86,9 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["patch_splits"] = st.patch_splits;
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;
+    report["in_core_start_rss_bytes"] = st.in_core_start_rss;
+    report["in_core_peak_rss_bytes"] = st.in_core_peak_rss;
+    report["in_core_lease_bytes_per_face"] = kInCoreBytesPerFace;
     report["largest_patch_faces"] = st.patch_faces_max;
     report["gathered_faces_total"] = st.gathered_faces_total;
     report["patch_faces_total"] = st.patch_faces_total;

@@ -244,6 +244,32 @@ TEST(SimplifyOoc, DemoSizedRunStaysUnderItsBudget) {
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 10000u);
 }
 
+// The in-core finish stays within its lease (kInCoreBytesPerFace per face, the report's
+// in_core_lease_bytes_per_face): one out-of-core epoch on 400K faces, then a finish of
+// ~345K faces with carried quadrics and bests, its lease two thirds of the capacity.
+// Its high-water mark above the RSS at its start (~160 B per face) must fit the lease,
+// and the process the governor's view (baseline + lease) and the budget. With the
+// build holding the gathered records beside the whole input (before build_whole_patch
+// released them block by block) it measured ~172 B per face, over a lease of 170.
+TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
+  TempDir dir;
+  const uint64_t budget = 112ull << 20;
+  const auto r = simplify_with_report(dir, generate(dir, "--faces 400000"),
+                                      "--ratio 0.01 --clusters 2 --in-core-faces 350000 --mem-budget 112M");
+  const uint64_t faces = r["in_core_faces"].get<uint64_t>();
+  const uint64_t lease_per_face = r["in_core_lease_bytes_per_face"].get<uint64_t>();
+  const uint64_t baseline = r["baseline_bytes"].get<uint64_t>();
+  const uint64_t start = r["in_core_start_rss_bytes"].get<uint64_t>();
+  const uint64_t peak = r["in_core_peak_rss_bytes"].get<uint64_t>();
+  ASSERT_GE(r["out_of_core_epochs"].get<int>(), 1);
+  ASSERT_GT(faces, 300000u);
+  EXPECT_GE(faces * lease_per_face, (budget - baseline) / 2) << "the finish is not most of the budget";
+  ASSERT_GT(peak, start);
+  EXPECT_LE(peak - start, faces * lease_per_face) << double(peak - start) / double(faces) << " B per finish face";
+  EXPECT_LE(peak, baseline + faces * lease_per_face);
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), budget);
+}
+
 // Runs `simplify INPUT DIR/out.ply ARGS --scratch DIR/scratch`, which must fail with
 // `exit_code` and a message containing `needle`, leaving no output and an empty scratch.
 void expect_refused(const TempDir& dir, const std::filesystem::path& input, const std::string& args, int exit_code,
