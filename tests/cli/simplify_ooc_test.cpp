@@ -247,13 +247,14 @@ TEST(SimplifyOoc, DemoSizedRunStaysUnderItsBudget) {
 // The in-core finish stays within its lease (kInCoreBytesPerFace per face, the report's
 // in_core_lease_bytes_per_face): one out-of-core epoch on 400K faces, then a finish of
 // ~345K faces with carried quadrics and bests, its lease two thirds of the capacity.
-// Its high-water mark above the RSS at its start (~160 B per face) must fit the lease,
-// and the process the governor's view (baseline + lease) and the budget. With the
-// build holding the gathered records beside the whole input (before build_whole_patch
-// released them block by block) it measured ~172 B per face, over a lease of 170.
+// Its high-water mark above the RSS at its start grows ~145 B per face (930K- to
+// 3.84M-face finishes) plus a part that does not scale (thread scratch, heap arenas:
+// here 154-179 B per face in all, up to 8 MiB above 145), which the baseline's margin
+// covers; the finish must start with no more than the baseline resident. A lease of
+// 120 B per face fails this test; 240 had been set when 175-221 B were measured.
 TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
   TempDir dir;
-  const uint64_t budget = 112ull << 20;
+  const uint64_t budget = 112ull << 20, unscaled = 8ull << 20;
   const auto r = simplify_with_report(dir, generate(dir, "--faces 400000"),
                                       "--ratio 0.01 --clusters 2 --in-core-faces 350000 --mem-budget 112M");
   const uint64_t faces = r["in_core_faces"].get<uint64_t>();
@@ -264,8 +265,9 @@ TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
   ASSERT_GE(r["out_of_core_epochs"].get<int>(), 1);
   ASSERT_GT(faces, 300000u);
   EXPECT_GE(faces * lease_per_face, (budget - baseline) / 2) << "the finish is not most of the budget";
+  EXPECT_LE(start, baseline) << "resident beyond the baseline with no lease held";
   ASSERT_GT(peak, start);
-  EXPECT_LE(peak - start, faces * lease_per_face) << double(peak - start) / double(faces) << " B per finish face";
+  EXPECT_LE(peak - start, faces * lease_per_face + unscaled) << double(peak - start) / double(faces) << " B per finish face";
   EXPECT_LE(peak, baseline + faces * lease_per_face);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), budget);
 }
