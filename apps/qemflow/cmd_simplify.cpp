@@ -181,7 +181,7 @@ void add_simplify_command(CLI::App& root, Run& run) {
   cmd->add_option("--trace", args->trace, "write a Chrome trace-event JSON of the run");
   cmd->add_option("--clusters", args->clusters, "patches of the out-of-core run (default: from the budget)");
   cmd->add_option("--in-core-faces", args->in_core_faces,
-                  "testing: finish in core at this many faces (default: when the mesh fits the budget)");
+                  "testing: finish in core at this many faces, at most what the budget allows (default: when the mesh fits the budget)");
   cmd->add_flag("--no-weld", args->no_weld, "keep vertices at identical positions apart");
   cmd->add_option("--report", args->report, "write a JSON report to this file");
   cmd->add_flag("--quiet", args->quiet, "no summary line on stderr");

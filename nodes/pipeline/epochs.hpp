@@ -61,7 +61,8 @@ struct OocOptions {
   SimplifyOptions simplify;          // target, epoch options, decimator params (weld: loader's)
   // The paper's partition (partition_stage.hpp); clusters 0: from the budget (clusters_for).
   PartitionOptions partition;
-  // Finish in core once the state has at most this many faces; 0: from the budget.
+  // Finish in core once the state has at most this many faces (at most what the budget
+  // allows: 0.9 of the capacity at kInCoreBytesPerFace); 0: from the budget.
   // Tests set 1 to keep the out-of-core epochs going to the end.
   uint64_t in_core_faces = 0;
   int initial_rings = 0;             // 0: kTrustSpread * E + kDecisionRadius + 2

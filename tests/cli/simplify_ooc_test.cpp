@@ -272,6 +272,31 @@ TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), budget);
 }
 
+TEST(SimplifyOoc, AForcedFinishLargerThanTheBudgetAllowsIsCappedNotAHang) {
+  // --in-core-faces 500000 (the whole mesh: 85 MB at 170 B a face) at 100M asks for a
+  // finish lease of the whole capacity (~70 MiB); the finish's gather then waited forever
+  // for frame memory. The patches need about 89M, so the budget has room either way.
+  // Now the threshold is capped at what the budget allows and the run ends (under
+  // `timeout`, so a hang fails the test).
+  TempDir dir;
+  const auto mesh = generate(dir, "--faces 500000");
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
+  const auto report = dir / "r.json";
+  std::string out;
+  ASSERT_EQ(run_command("timeout 300 " + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+                            " --ratio 0.01 --clusters 2 --in-core-faces 500000 --mem-budget 100M --quiet --report " +
+                            report.string() + " --scratch " + dir.path().string(),
+                        &out),
+            0)
+      << out;
+  const auto r = read_json(report);
+  const uint64_t capacity = r["budget_bytes"].get<uint64_t>() - r["baseline_bytes"].get<uint64_t>();
+  EXPECT_LE(r["in_core_faces"].get<uint64_t>() * r["in_core_lease_bytes_per_face"].get<uint64_t>(),
+            uint64_t(0.9 * double(capacity)));
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 100ull << 20);
+}
+
 // Runs `simplify INPUT DIR/out.ply ARGS --scratch DIR/scratch`, which must fail with
 // `exit_code` and a message containing `needle`, leaving no output and an empty scratch.
 void expect_refused(const TempDir& dir, const std::filesystem::path& input, const std::string& args, int exit_code,
