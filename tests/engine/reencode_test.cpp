@@ -443,6 +443,110 @@ TEST(Reencode, ScratchWriteErrorEndsCleanlyWithNothingLeftBehind) {
   EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 1);
 }
 
+// review6: the face-id-order write (blocks whole, or in groups of id ranges) ends
+// cleanly when cancelled or when the output cannot be written, and tiny meshes with
+// repeated-vertex faces give the resident bytes out of core.
+ReencodeOptions write_stage_options(const std::filesystem::path& in, const TempDir& dir, const TempDir& scratch,
+                                    uint64_t group) {
+  ReencodeOptions options{.input = in, .output = dir / "out.ply", .scratch_dir = scratch.path()};
+  options.load = {.faces_per_block = 5'000, .window_vertices = 4'000, .range_faces = 5'000, .force_out_of_core = true};
+  options.group_faces = group;
+  return options;
+}
+
+TEST(Reencode, CancelWhileBlocksGoInFaceIdOrderLeavesNothing) {
+  for (uint64_t group : {uint64_t{0}, uint64_t{1'500}}) {
+    SCOPED_TRACE("group " + std::to_string(group));
+    TempDir dir, scratch_dir;
+    auto in = make_mesh(dir, 100'000);
+    Governor governor(64ull << 20, 0);
+    auto cancel = std::make_shared<CancelToken>();
+    bool fired = false;
+    JobHooks hooks;
+    hooks.cancel = cancel;
+    hooks.progress = [&](double fraction, const std::string& stage) {
+      if (stage == "write" && fraction > 0.92 && !fired) {  // past the vertices: faces in order
+        fired = true;
+        cancel->cancel();
+      }
+    };
+    ErrorKind kind = ErrorKind::internal;
+    try {
+      run_reencode(governor, write_stage_options(in, dir, scratch_dir, group), hooks);
+    } catch (const Error& e) {
+      kind = e.kind();
+    }
+    EXPECT_TRUE(fired);
+    EXPECT_EQ(kind, ErrorKind::cancelled);
+    EXPECT_TRUE(directory_empty(scratch_dir.path()));
+    EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 1);  // only the input
+    EXPECT_EQ(governor.in_use(), 0u);
+  }
+}
+
+TEST(Reencode, OutputWriteErrorWhileBlocksGoInFaceIdOrderLeavesNothing) {
+  for (uint64_t group : {uint64_t{0}, uint64_t{1'500}}) {
+    SCOPED_TRACE("group " + std::to_string(group));
+    TempDir dir, scratch_dir;
+    auto in = make_mesh(dir, 100'000);
+    Governor governor(64ull << 20, 0);
+    ReencodeOptions options = write_stage_options(in, dir, scratch_dir, group);
+    options.scratch_codec = ScratchCodec::zstd;  // scratch files stay under the limit
+    rlimit old{};
+    getrlimit(RLIMIT_FSIZE, &old);
+    auto old_handler = signal(SIGXFSZ, SIG_IGN);
+    rlimit small = old;
+    small.rlim_cur = 1'200'000;  // the vertices (600 KB) fit, not every face (1.3 MB)
+    setrlimit(RLIMIT_FSIZE, &small);
+    std::string message;
+    bool threw = false;
+    try {
+      run_reencode(governor, options, {});
+    } catch (const Error& e) {
+      threw = true;
+      message = e.what();
+    }
+    setrlimit(RLIMIT_FSIZE, &old);
+    signal(SIGXFSZ, old_handler);
+    EXPECT_TRUE(threw);
+    EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+    EXPECT_TRUE(directory_empty(scratch_dir.path()));
+    EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), {}), 1);
+    EXPECT_EQ(governor.in_use(), 0u);
+  }
+}
+
+TEST(Reencode, TinyMeshOutOfCoreGivesTheResidentBytes) {
+  TempDir dir;
+  {
+    std::ofstream ply(dir / "tiny.ply");  // an unreferenced vertex, faces with repeated vertices
+    ply << "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+           "element face 4\nproperty list uchar int vertex_indices\nend_header\n"
+           "0 0 0\n1 0 0\n0 1 0\n5 5 5\n0 0 1\n3 0 1 2\n3 2 2 4\n3 4 1 0\n3 0 0 0\n";
+  }
+  for (const char* extension : {".ply", ".obj"}) {
+    std::string reference;
+    for (uint64_t group : {uint64_t{0}, uint64_t{0}, uint64_t{1}}) {
+      const bool out_of_core = !reference.empty();
+      SCOPED_TRACE(std::string(extension) + (out_of_core ? " out of core" : " resident") + ", groups of " +
+                   std::to_string(group));
+      Governor governor(64ull << 20, 0);
+      const auto out = dir / (std::string("out") + extension);
+      ReencodeOptions options{.input = dir / "tiny.ply", .output = out, .scratch_dir = dir.path()};
+      options.load = {.faces_per_block = 1, .window_vertices = out_of_core ? 1u : 0u,
+                      .range_faces = out_of_core ? 1u : 0u, .force_out_of_core = out_of_core};
+      options.group_faces = group;
+      auto result = run_reencode(governor, options, {});
+      EXPECT_EQ(result.faces, 4u);
+      EXPECT_EQ(result.report["out_of_core_dereference"].get<bool>(), out_of_core);
+      const std::string bytes = file_bytes(out);
+      if (reference.empty()) reference = bytes;
+      EXPECT_TRUE(bytes == reference) << "output differs from the resident run's";
+      std::filesystem::remove(out);
+    }
+  }
+}
+
 TEST(Reencode, BadInputEndsWithAOneLineErrorAndNothingLeftBehind) {
   TempDir dir, scratch_dir;
   {
