@@ -22,6 +22,7 @@
 // disk and scratch, cancelled).
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <string>
 
 #include <nlohmann/json.hpp>
@@ -78,6 +79,7 @@ struct ReencodeCommand {
   int threads = 0;
   bool quiet = false;
   ScratchCodec scratch_codec = ScratchCodec::automatic;
+  std::shared_ptr<CancelToken> cancel;  // may be empty (the CLI's: interrupt.hpp)
 };
 ReencodeResult run_reencode_command(const ReencodeCommand& command);
 

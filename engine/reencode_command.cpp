@@ -22,7 +22,7 @@ ReencodeResult run_reencode_command(const ReencodeCommand& command) {
   options.report_path = command.report_path;
   options.threads = command.threads;
   options.scratch_codec = command.scratch_codec;
-  ReencodeResult result = run_reencode(governor, options, {.progress = bar.callback(), .cancel = {}});
+  ReencodeResult result = run_reencode(governor, options, {.progress = bar.callback(), .cancel = command.cancel});
   bar.finish();
   if (!command.quiet) std::fprintf(stderr, "qemflow: %s\n", result.summary.c_str());
   return result;

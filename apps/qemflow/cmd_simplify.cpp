@@ -19,6 +19,7 @@
 #include "apps/qemflow/commands.hpp"
 #include "engine/process_memory.hpp"
 #include "config/size.hpp"
+#include "engine/interrupt.hpp"
 #include "engine/reencode.hpp"
 #include "nodes/pipeline/epochs.hpp"
 #include "io/indexed_mesh.hpp"
@@ -70,7 +71,8 @@ void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && *args.ratio == 1.0 && !args.in_core) {
     engine::run_reencode_command({.input = args.input, .output = args.output, .scratch_dir = args.scratch,
                                   .trace_path = args.trace, .report_path = args.report,
-                                  .mem_budget = mem_budget, .threads = args.threads, .quiet = args.quiet});
+                                  .mem_budget = mem_budget, .threads = args.threads, .quiet = args.quiet,
+                                  .cancel = engine::interrupt_token()});
     return;
   }
   if (!args.in_core) {
@@ -84,6 +86,7 @@ void run_simplify(const SimplifyArgs& args) {
     command.threads = args.threads;
     command.quiet = args.quiet;
     command.double_precision = args.double_precision;
+    command.cancel = engine::interrupt_token();
     auto& o = command.options;
     o.simplify = simplify_options(args);
     o.partition.clusters = args.clusters == "auto" ? 0 : uint32_t(std::stoul(args.clusters));

@@ -4,9 +4,12 @@
 #include <exception>
 
 #include "apps/qemflow/commands.hpp"
+#include "engine/interrupt.hpp"
 #include "util/error.hpp"
 
 int main(int argc, char** argv) {
+  // First, before any thread starts: Ctrl-C cancels an out-of-core job cleanly.
+  qemflow::engine::install_interrupt_cancel();
   CLI::App app{"qemflow: out-of-core QEM simplification of huge triangle meshes"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "qemflow 0.1.0");

@@ -42,6 +42,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <functional>
 #include <optional>
 #include <string>
@@ -153,6 +154,7 @@ struct OocCommand {
   bool double_precision = false;  // as `--double`
   bool weld = true;               // --no-weld: false (the loader's weld, as in core)
   OocOptions options;
+  std::shared_ptr<engine::CancelToken> cancel;  // may be empty (the CLI's: interrupt.hpp)
 };
 nlohmann::json run_ooc_command(const OocCommand& command);
 

@@ -24,7 +24,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
   engine::JobSettings settings;
   settings.threads = command.threads;
   settings.trace_events = command.trace_path.empty() ? 0 : (1 << 18);
-  engine::Job job(governor, {.progress = bar.callback(), .cancel = {}}, settings);
+  engine::Job job(governor, {.progress = bar.callback(), .cancel = command.cancel}, settings);
   nlohmann::json report;
   engine::run_then_write_trace(job, command.trace_path, [&] {
     std::error_code ec;

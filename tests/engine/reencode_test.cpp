@@ -271,7 +271,9 @@ TEST(Reencode, ResidentAndOutOfCoreGiveTheSameBytesWithFacesInRandomOrder) {
                     .range_faces = out_of_core ? 3'001u : 0u, .force_out_of_core = out_of_core};
     options.group_faces = group;
     auto result = run_reencode(governor, options, {});
-    if (out_of_core) EXPECT_GT(result.report["block_groups_sorted"].get<uint64_t>(), 0u);
+    if (out_of_core) {
+      EXPECT_GT(result.report["block_groups_sorted"].get<uint64_t>(), 0u);
+    }
     const std::string bytes = file_bytes(out);
     if (reference.empty()) {
       reference = bytes;
