@@ -68,10 +68,12 @@ void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
     throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
   const uint64_t mem_budget = args.mem_budget.empty() ? 0 : config::parse_size(args.mem_budget);
-  if (args.ratio && *args.ratio == 1.0 && !args.in_core) {
+  if (args.ratio && *args.ratio == 1.0) {
+    // --ratio 1 is the re-encode, with --in-core too (then under the machine's budget:
+    // resident when it fits), so both give one file: every vertex and face as they are.
     engine::run_reencode_command({.input = args.input, .output = args.output, .scratch_dir = args.scratch,
                                   .trace_path = args.trace, .report_path = args.report,
-                                  .mem_budget = mem_budget, .threads = args.threads, .quiet = args.quiet,
+                                  .mem_budget = args.in_core ? 0 : mem_budget, .threads = args.threads, .quiet = args.quiet,
                                   .cancel = engine::interrupt_token()});
     return;
   }

@@ -1,7 +1,7 @@
 // `simplify --ratio 1` (the re-encode) against the contract, from the command line: at a
 // budget just above the loader's minimum, on a mesh whose faces come in random order and
 // whose vertices are partly shuffled, it stays under --mem-budget (DESIGN.md §3,
-// guarantee 4); to OBJ it writes the bytes `--in-core` does (guarantee 2).
+// guarantee 4); to OBJ (and PLY) it writes the bytes `--in-core` does (guarantee 2).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -61,21 +61,17 @@ TEST(ReencodeCli, FacesInRandomOrderStayUnderATightBudget) {
       << "baseline " << r["baseline_bytes"] << ", governor peak " << r["governor_peak_bytes"];
 }
 
-// Found by review6 (present at 58b3b41 and at 12fb51b alike): `qemflow simplify
-// m.ply out.obj --ratio 1` (the re-encode) writes each float coordinate as its
-// shortest double text ("-0.7237222790718079"), `--ratio 1 --in-core` (the in-core
-// simplifier, as every other ratio in or out of core) as its shortest float text
-// ("-0.7237223"): the same mesh, other bytes. PLY output is the same file both ways.
-// Open, and not the only difference: the re-encode is lossless by design (every vertex
-// kept, doubles written when the input is not float-exact), while `--ratio 1 --in-core`
-// runs the simplifier (welds duplicates, writes floats unless --double). Which of the
-// two `--ratio 1` should be is still to decide; this test pins the OBJ part.
-TEST(ReencodeCli, DISABLED_RatioOneToObjGivesTheInCoreBytes) {
+// Found by review6 (present at 58b3b41): `qemflow simplify m.ply out.obj --ratio 1` (the
+// re-encode) wrote each float coordinate as its shortest double text
+// ("-0.7237222790718079"), `--ratio 1 --in-core` (then the simplifier, which also welds
+// and writes floats unless --double) as its shortest float text ("-0.7237223"): the
+// same mesh, other bytes. `--ratio 1` is now the re-encode with --in-core too.
+TEST(ReencodeCli, RatioOneToObjGivesTheInCoreBytes) {
   TempDir dir;
   const auto mesh = dir / "blob.ply";
   std::string out;
   ASSERT_EQ(run_command(cli_path().string() + " gen " + mesh.string() + " --faces 20000 --quiet", &out), 0) << out;
-  for (const char* mode : {" --in-core", " --mem-budget 64M"}) {
+  for (const char* mode : {" --in-core", " --mem-budget 64M"}) {  // 64M: out of core
     const auto result = dir / (std::string(mode[3] == 'i' ? "in_core" : "budget") + ".obj");
     ASSERT_EQ(run_command(cli_path().string() + " simplify " + mesh.string() + " " + result.string() + " --ratio 1" +
                               mode + " --quiet --scratch " + dir.path().string(),
@@ -85,6 +81,13 @@ TEST(ReencodeCli, DISABLED_RatioOneToObjGivesTheInCoreBytes) {
   }
   EXPECT_TRUE(file_bytes(dir / "in_core.obj") == file_bytes(dir / "budget.obj"))
       << "--ratio 1 to OBJ: other bytes with --in-core than with a budget";
+  // The text keeps every bit: re-encoding that OBJ again gives the same bytes.
+  ASSERT_EQ(run_command(cli_path().string() + " simplify " + (dir / "in_core.obj").string() + " " +
+                            (dir / "again.obj").string() + " --ratio 1 --in-core --quiet --scratch " + dir.path().string(),
+                        &out),
+            0)
+      << out;
+  EXPECT_TRUE(file_bytes(dir / "again.obj") == file_bytes(dir / "in_core.obj")) << "an OBJ re-encoded twice changed";
 }
 
 }  // namespace
