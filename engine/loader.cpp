@@ -18,6 +18,7 @@
 #include "io/ply_bulk.hpp"
 #include "util/error.hpp"
 #include "util/hash.hpp"
+#include "util/memory.hpp"
 
 namespace qemflow::engine {
 
@@ -618,7 +619,7 @@ class Loader {
       });
     });
     weld_.add_runs(n, [&](uint64_t i) { return positions[order[i]]; }, [&](uint64_t i) { return order[i]; });
-    order = {};
+    release_memory(order);
     give_back(std::move(order_lease));
     finish_weld(n);
   }
@@ -1010,7 +1011,7 @@ class Loader {
         });
       });
       weld_.add_runs(n, [&](uint64_t i) { return records[i].position; }, [&](uint64_t i) { return records[i].index; });
-      records = {};
+      release_memory(records);
       give_back(std::move(bucket_lease));
       job_.check();
     }
@@ -1195,8 +1196,8 @@ class Loader {
     }
     wait_for_hand_out();
     mesh_.vertices_delivered = bool(hooks_.vertices) || floats;
-    pair = {};
-    pair_xyz = {};
+    release_memory(pair);
+    release_memory(pair_xyz);
     give_back(std::move(pair_lease));
     collect_blocks(blocks);
     remove_files(local);
@@ -1245,9 +1246,9 @@ class Loader {
         }
         add_face(spanning_blocks, face);
       }
-      vertex_of = {};
-      position_of = {};
-      filled = {};
+      release_memory(vertex_of);
+      release_memory(position_of);
+      release_memory(filled);
       give_back(std::move(range_lease));
       job_.check();
       job_.progress(0.8 + 0.1 * double(r + 1) / range_count, "assemble");

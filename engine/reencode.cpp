@@ -13,6 +13,7 @@
 #include "io/mesh_stream.hpp"
 #include "io/ply_bulk.hpp"
 #include "util/error.hpp"
+#include "util/memory.hpp"
 
 namespace qemflow::engine {
 
@@ -441,7 +442,7 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
     out.piece_faces = (2u << 20) / out.bytes_per_face();
     const Ordering ordering = record == id_triangle32_record_size ? merge_in_face_id_order<IdTriangle32>(job, frames, out)
                                                                   : merge_in_face_id_order<IdTriangle64>(job, frames, out);
-    frames = {};
+    release_memory(frames);
     out.finish();
     return ordering;
   };
@@ -509,7 +510,7 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
         faces += decode_frame_payload(header.data(), payload, record, "block frame").count;
         frames.push_back(std::move(payload));
       }
-      item.encoded = {};
+      release_memory(item.encoded);
       if (faces != mesh.block_faces[item.cell]) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
       item.ordering = merge(frames, item.out);
     };
@@ -738,9 +739,8 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     StageTimer timer(job, "write");
     const bool blocks_in_memory = mesh.blocks_resident();
     write_vertices(job, scratch, mesh, *writer);
-    // Freed (swap), not emptied: `= {}` would keep the capacity resident after the lease.
-    std::vector<Point>().swap(mesh.vertices.resident);
-    UninitializedVector<float>().swap(mesh.vertices.resident_xyz);
+    release_memory(mesh.vertices.resident);
+    release_memory(mesh.vertices.resident_xyz);
     mesh.resident_lease.release();
     FaceIdOrderStats in_order;
     const bool ids_in_blocks = is_id_triangle_record(mesh.block_record_size);

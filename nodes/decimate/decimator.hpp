@@ -67,15 +67,9 @@
 
 #include "nodes/decimate/quadric.hpp"
 #include "util/hash.hpp"
+#include "util/memory.hpp"
 
 namespace qemflow::nodes {
-
-// Frees a vector's storage (`v = {}` would keep the capacity: it assigns an empty
-// initializer list).
-template <class T>
-void release_memory(std::vector<T>& v) {
-  std::vector<T>().swap(v);
-}
 
 inline constexpr int kDecisionRadius = 4;
 // Untrusted state spreads this many rings per round (wrong decisions within

@@ -47,9 +47,8 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
       load_options.weld = command.weld;
       mesh = engine::load_into_blocks(job, scratch, command.input, load_options);
     }
-    // Freed, not only emptied: `= {}` assigns an empty list and keeps the capacity, so
-    // the positions (24 B per input vertex: 572 MiB for the 50M blob) stayed resident
-    // beside the epochs and the finish after their lease was given back.
+    // Freed with the lease, not only emptied (util/memory.hpp): 572 MiB for the 50M
+    // blob stayed resident through the epochs and the finish.
     release_memory(mesh.vertices.resident);
     mesh.resident_lease.release();
     OocResult result = simplify_blocks(job, scratch, mesh, command.options);
