@@ -57,6 +57,18 @@ void expect_same_mesh(const std::filesystem::path& in, const std::filesystem::pa
   EXPECT_TRUE(sorted(a.triangles) == sorted(b.triangles));
 }
 
+// One run of a series that must all write the same bytes: the first run's output is the
+// reference (and the input's mesh); every later one must equal it byte for byte.
+void expect_bytes_of_first_run(std::string& reference, const std::filesystem::path& in,
+                               const std::filesystem::path& out, const char* first_run) {
+  const std::string bytes = file_bytes(out);
+  if (reference.empty()) {
+    reference = bytes;
+    expect_same_mesh(in, out);
+  }
+  EXPECT_TRUE(bytes == reference) << "output differs from the " << first_run << "'s";
+}
+
 TEST(Reencode, ResidentVerticesGiveTheSameMesh) {
   TempDir dir;
   auto in = make_mesh(dir, 20'000);
@@ -140,12 +152,7 @@ TEST(Reencode, SameBytesOnEveryRunWithAnyThreadCountResidentOrOutOfCore) {
       options.scratch_codec = ScratchCodec::raw;
       auto result = run_reencode(governor, options, {});
       EXPECT_EQ(result.report["out_of_core_dereference"].get<bool>(), out_of_core);
-      const std::string bytes = file_bytes(out);
-      if (reference.empty()) {
-        reference = bytes;
-        expect_same_mesh(in, out);
-      }
-      EXPECT_TRUE(bytes == reference) << "output differs from the first run's";
+      expect_bytes_of_first_run(reference, in, out, "first run");
     }
   }
 }
@@ -192,12 +199,7 @@ TEST(Reencode, SameBytesWhateverBaselineTheGovernorMeasured) {
     options.load.force_out_of_core = out_of_core;  // window and ranges from the memory the loader got
     auto result = run_reencode(governor, options, {});
     EXPECT_EQ(result.report["out_of_core_dereference"].get<bool>(), out_of_core);
-    const std::string bytes = file_bytes(out);
-    if (reference.empty()) {
-      reference = bytes;
-      expect_same_mesh(dir / "spanning.ply", out);
-    }
-    EXPECT_TRUE(bytes == reference) << "output differs from the first run's";
+    expect_bytes_of_first_run(reference, dir / "spanning.ply", out, "first run");
   }
 }
 
@@ -240,12 +242,7 @@ TEST(Reencode, ResidentAndOutOfCoreGiveTheSameBytesOnSpanningFaces) {
       if (run.group != 0) {  // groups of at most 1500 faces
         EXPECT_GE(result.report["block_groups"].get<uint64_t>(), 60'000u / 1'500u);
       }
-      const std::string bytes = file_bytes(out);
-      if (reference.empty()) {
-        reference = bytes;
-        expect_same_mesh(in, out);
-      }
-      EXPECT_TRUE(bytes == reference) << "output differs from the resident run's";
+      expect_bytes_of_first_run(reference, in, out, "resident run");
       std::filesystem::remove(out);
     }
   }
@@ -274,12 +271,7 @@ TEST(Reencode, ResidentAndOutOfCoreGiveTheSameBytesWithFacesInRandomOrder) {
     if (out_of_core) {
       EXPECT_GT(result.report["block_groups_sorted"].get<uint64_t>(), 0u);
     }
-    const std::string bytes = file_bytes(out);
-    if (reference.empty()) {
-      reference = bytes;
-      expect_same_mesh(dir / "shuffled.ply", out);
-    }
-    EXPECT_TRUE(bytes == reference) << "output differs from the resident run's";
+    expect_bytes_of_first_run(reference, dir / "shuffled.ply", out, "resident run");
   }
 }
 
