@@ -69,7 +69,9 @@ struct Box {
     add(b.min);
     add(b.max);
   }
-  bool empty() const { return !(min[0] <= max[0]); }
+  // Empty on any axis: an intersection can be (a chunk's box beside a part's region
+  // along y or z).
+  bool empty() const { return !(min[0] <= max[0] && min[1] <= max[1] && min[2] <= max[2]); }
   bool contains(const Point& p) const {
     for (int k = 0; k < 3; ++k)
       if (p[k] < min[k] || p[k] > max[k]) return false;
