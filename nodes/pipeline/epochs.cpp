@@ -96,6 +96,13 @@ struct Box {
       if (b.max[k] < min[k] || b.min[k] > max[k]) return false;
     return true;
   }
+  // The L-infinity distance from the box (0 inside): the least margin whose grown box
+  // holds `p`.
+  double distance_to(const Point& p) const {
+    double d = 0;
+    for (int k = 0; k < 3; ++k) d = std::max({d, min[k] - p[k], p[k] - max[k]});
+    return d;
+  }
   static Box unbounded() {
     Box b;
     std::swap(b.min, b.max);
@@ -494,6 +501,11 @@ struct PatchPart {
   // vertex whose fan was not gathered. Per part, so one part's redo does not widen its
   // siblings' gathers.
   double margin_factor = 1.5;
+  // The farthest reach of a built halo (BuiltPatch::reach) in mean edges, and its ring
+  // count (0: none yet, or a margin redo since): the next gathers' margins start
+  // from it (Runner::part_margin).
+  int reach_rings = 0;
+  double reach_edges = 0;
 };
 
 // Face records the part does not own carry this owner, so "owner == p" means "owned by
@@ -571,6 +583,7 @@ class HaloRegion {
 struct GatherPlan {
   std::vector<FrameRef> frames;
   uint64_t most_faces = 0, most_blob_bytes = 0;
+  std::vector<Box> owned_boxes;  // the owner's chunk boxes cut to the part's region (not grown)
   HaloRegion region;
 };
 
@@ -582,7 +595,9 @@ GatherPlan plan_gather(const MeshState& state, const PatchPart* part, double mar
     for (const auto& c : state.chunks) {
       if (c.meta.owner != part->owner) continue;
       const Box owned = part->whole ? c.meta.box : c.meta.box.intersected(part->region);
-      if (!owned.empty()) grown.push_back(owned.grown(margin));
+      if (owned.empty()) continue;
+      plan.owned_boxes.push_back(owned);
+      grown.push_back(owned.grown(margin));
     }
     plan.region = HaloRegion(std::move(grown));
   }
@@ -706,6 +721,9 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
 struct BuiltPatch {
   PatchInput input;
   bool margin_too_small = false;
+  // The halo's reach: the largest distance (Box::distance_to) from the owned boxes of a
+  // vertex the BFS expanded, i.e. the least gather margin that holds this patch.
+  double reach = 0;
 };
 
 // Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. The
@@ -713,7 +731,8 @@ struct BuiltPatch {
 // a gid stands for it, and only the selection is put in gid / fid order (sorting
 // 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
 // `carry_bests`: the records' carried best edges are valid for the pass (PatchInput::best_gids).
-BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests) {
+BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests,
+                       const std::vector<Box>& owned_boxes) {
   BuiltPatch out;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const VertexRecord* vb = g.vertices.data();
@@ -756,9 +775,24 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
           frontier.push_back(v);
         }
     }
+  // The last owned box a vertex was found in or nearest to: neighbours usually share it.
+  size_t near = 0;
+  auto reach_of = [&](const Point& x) {
+    if (owned_boxes.empty()) return 0.0;
+    double d = owned_boxes[near].distance_to(x);
+    for (size_t b = 0; b < owned_boxes.size() && d > 0; ++b) {
+      const double db = owned_boxes[b].distance_to(x);
+      if (db < d) {
+        d = db;
+        near = b;
+      }
+    }
+    return d;
+  };
   for (int r = 0; r < rings && !whole; ++r) {
     next.clear();
     for (uint32_t v : frontier) {
+      out.reach = std::max(out.reach, reach_of(vb[v].position));
       if (count[v + 1] - count[v] < vb[v].degree) {
         out.margin_too_small = true;
         return out;
@@ -995,6 +1029,21 @@ struct Runner {
     return part.whole ? owner_box[part.owner] : owner_box[part.owner].intersected(part.region);
   }
 
+  // A part's gather margin: the margin factor's, or tighter once a built halo measured
+  // the part's reach (PatchPart::reach_edges at reach_rings): the same reach with
+  // kReachSlack to spare, plus margin_factor mean edges per ring beyond reach_rings.
+  // The mesh coarsens evenly between passes, so a reach in mean edges holds on the
+  // meshes seen; a margin too small costs a margin redo (the BFS's check, after which
+  // the factor's margin applies), never a different patch.
+  static constexpr double kReachSlack = 1.2;
+  double part_margin(const PatchPart& part, int rings) const {
+    const double edge = owner_edge[part.owner];
+    const double by_factor = (rings + 2) * edge * part.margin_factor;
+    if (part.reach_rings <= 0) return by_factor;
+    const double beyond = std::max(0, rings - part.reach_rings) * part.margin_factor;
+    return std::min(by_factor, (part.reach_edges * kReachSlack + beyond + 1) * edge);
+  }
+
   // Runs one part: gather under a lease of at most patch_cap(), build with the halo
   // (a margin redo doubles the part's margin factor), run the plan, summarize, export.
   // False, with nothing run or kept, when the gather found more faces than the lease
@@ -1007,7 +1056,7 @@ struct Runner {
     for (;;) {
       job.check();
       const int rings = this->rings();
-      const double margin = (rings + 2) * owner_edge[p] * part.margin_factor;
+      const double margin = part_margin(part, rings);
       // The gather's upper bound from the chunk metas: when it fits, the gather cannot
       // go over; the lease is trimmed to what was found.
       const GatherPlan gather = plan_gather(state, &part, margin);
@@ -1025,13 +1074,21 @@ struct Runner {
       lease.shrink_to(g.faces.size() * kPatchBytesPerFace);
       const uint64_t owned_faces = g.owned_faces;
       BuiltPatch built;
-      job.arena().execute([&] { built = build_patch(g, p, rings, false, carry_bests); });
+      job.arena().execute([&] { built = build_patch(g, p, rings, false, carry_bests, gather.owned_boxes); });
       g = {};
       clock.charge(kBuild);
       if (built.margin_too_small) {
-        part.margin_factor *= 2;
+        if (part.reach_rings > 0)
+          part.reach_rings = 0;  // back to the factor's margin
+        else
+          part.margin_factor *= 2;
         ++stats.margin_redos;
         continue;
+      }
+      if (rings >= part.reach_rings && owner_edge[p] > 0) {
+        const double edges = built.reach / owner_edge[p];
+        part.reach_edges = rings == part.reach_rings ? std::max(part.reach_edges, edges) : edges;
+        part.reach_rings = rings;
       }
       stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
       stats.patch_faces_total += built.input.faces.size();
@@ -1098,7 +1155,8 @@ struct Runner {
     for (int k = 1; k < 3; ++k)
       if (owned.max[k] - owned.min[k] > owned.max[axis] - owned.min[axis]) axis = k;
     const double middle = 0.5 * (owned.min[axis] + owned.max[axis]);
-    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region, part.margin_factor};
+    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region, part.margin_factor,
+                  part.reach_rings, part.reach_edges};
     PatchPart high = low;
     low.region.max[axis] = middle;
     high.region.min[axis] = middle;
