@@ -125,6 +125,14 @@ struct ChunkMeta {
   uint32_t owner = 0;
   uint64_t faces = 0;
   Box box;
+  // The boxes of the chunk's faces (their corners) in kParts runs of the chunk's order
+  // (part_of): an export's chunk is in Morton order, so each run is a compact piece of
+  // surface where the whole chunk's box may span a fold or a Morton jump. The gather
+  // grows the owner's parts into the halo region and reads a chunk only when one of its
+  // parts meets it.
+  static constexpr size_t kParts = 8;
+  std::array<Box, kParts> parts;
+  static size_t part_of(size_t face, size_t faces) { return face * kParts / faces; }
   double edge_sum = 0;  // summed edge lengths of the chunk's faces (margin estimate)
 };
 
@@ -211,11 +219,14 @@ ChunkMeta meta_of(uint32_t owner, const std::vector<FaceRecord>& faces, const st
   auto position = [&](uint64_t gid) -> const Point& {
     return vertices[size_t(std::lower_bound(gids.begin(), gids.end(), gid) - gids.begin())].position;
   };
-  for (const auto& f : faces) {
+  for (size_t j = 0; j < faces.size(); ++j) {
+    const auto& f = faces[j];
     const Point& p0 = position(f.v[0]);
     const Point& p1 = position(f.v[1]);
     const Point& p2 = position(f.v[2]);
     m.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
+    Box& part = m.parts[ChunkMeta::part_of(j, faces.size())];
+    for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
   }
   return m;
 }
@@ -334,6 +345,8 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           const Point& p1 = out.positions[t[1]];
           const Point& p2 = out.positions[t[2]];
           meta.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
+          Box& part = meta.parts[ChunkMeta::part_of(j, n)];
+          for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
         }
         for (size_t k = 0; k < nv; ++k) {
           const uint32_t v = locals[k];
@@ -594,15 +607,23 @@ GatherPlan plan_gather(const MeshState& state, const PatchPart* part, double mar
     std::vector<Box> grown;
     for (const auto& c : state.chunks) {
       if (c.meta.owner != part->owner) continue;
-      const Box owned = part->whole ? c.meta.box : c.meta.box.intersected(part->region);
-      if (owned.empty()) continue;
-      plan.owned_boxes.push_back(owned);
-      grown.push_back(owned.grown(margin));
+      for (const Box& b : c.meta.parts) {
+        const Box owned = part->whole ? b : b.intersected(part->region);
+        if (owned.empty()) continue;
+        plan.owned_boxes.push_back(owned);
+        grown.push_back(owned.grown(margin));
+      }
     }
     plan.region = HaloRegion(std::move(grown));
   }
+  auto meets_region = [&](const ChunkMeta& m) {
+    if (!plan.region.meets(m.box)) return false;
+    for (const Box& b : m.parts)
+      if (!b.empty() && plan.region.meets(b)) return true;
+    return false;
+  };
   for (const auto& c : state.chunks)
-    if (!part || (c.meta.owner == part->owner && part->whole) || plan.region.meets(c.meta.box)) {
+    if (!part || (c.meta.owner == part->owner && part->whole) || meets_region(c.meta)) {
       plan.frames.push_back(c.frame);
       plan.most_faces += c.meta.faces;
       plan.most_blob_bytes += c.frame.count;
@@ -775,12 +796,14 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
           frontier.push_back(v);
         }
     }
-  // The last owned box a vertex was found in or nearest to: neighbours usually share it.
+  // Only a vertex farther than the reach so far needs its nearest box: the box that
+  // held or was nearest to the last one usually holds the next (BFS neighbours), and a
+  // scan stops at any box within the reach.
   size_t near = 0;
   auto reach_of = [&](const Point& x) {
     if (owned_boxes.empty()) return 0.0;
     double d = owned_boxes[near].distance_to(x);
-    for (size_t b = 0; b < owned_boxes.size() && d > 0; ++b) {
+    for (size_t b = 0; b < owned_boxes.size() && d > out.reach; ++b) {
       const double db = owned_boxes[b].distance_to(x);
       if (db < d) {
         d = db;
@@ -1057,6 +1080,7 @@ struct Runner {
       job.check();
       const int rings = this->rings();
       const double margin = part_margin(part, rings);
+      if (margin < (rings + 2) * owner_edge[p] * part.margin_factor) ++stats.reach_gathers;
       // The gather's upper bound from the chunk metas: when it fits, the gather cannot
       // go over; the lease is trimmed to what was found.
       const GatherPlan gather = plan_gather(state, &part, margin);

@@ -25,10 +25,13 @@
 //   Nothing collapses between a summary and the next pass; when the guards relax in
 //   between, nothing is carried (the bests were found under the old params).
 // - A patch's halo: faces within `rings` rings of its owned faces, found by BFS over
-//   the faces with a vertex near the owned faces (their chunks' boxes grown by a
-//   margin; chunks that meet none are not read); a vertex whose fan is
-//   not whole in what was loaded (loaded faces < degree) may not be expanded: then the
-//   margin doubles and the patch is gathered again.
+//   the faces with a vertex near the owned faces (the boxes of runs of their chunks'
+//   faces grown by a margin; chunks that meet none are not read). The margin starts at
+//   (rings + 2) * 1.5 mean edges and then follows the reach the part's last built halo
+//   measured, with slack (counted: reach_gathers); a vertex whose fan is not whole in
+//   what was loaded (loaded faces < degree) may not be expanded: then the margin goes
+//   back to the factor's, or doubles, and the patch is gathered again (margin_redos).
+//   The margin changes what is read, never the patch.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
 // - Memory: a patch runs under one governor lease of kPatchBytesPerFace per gathered
@@ -78,6 +81,10 @@ struct OocStats {
   uint64_t ooc_epochs = 0;           // passes over the patches
   uint64_t rounds = 0;
   uint64_t halo_redos = 0, margin_redos = 0;
+  // Gathers whose margin came from the part's measured halo reach (the farthest vertex
+  // its last built halo expanded, with slack) rather than the (rings + 2) * 1.5 mean
+  // edges a part starts with: tighter, so fewer faces read, kept and split for.
+  uint64_t reach_gathers = 0;
   uint64_t patch_splits = 0;         // a patch part halved because it did not fit its lease
   int max_rings = 0;
   uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)

@@ -82,6 +82,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["rounds"] = st.rounds;
     report["halo_redos"] = st.halo_redos;
     report["margin_redos"] = st.margin_redos;
+    report["reach_gathers"] = st.reach_gathers;
     report["patch_splits"] = st.patch_splits;
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;

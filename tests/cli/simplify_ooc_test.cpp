@@ -218,6 +218,22 @@ TEST(SimplifyOoc, PeakRssStaysUnderTheBudget) {
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 3000u);
 }
 
+// A part's gather margin follows the halo reach its last build measured (epochs.hpp):
+// after the first pass most gathers use it, and a gather keeps under 3.3 times the
+// faces of the patch it builds: 2.9x here with the measured reach, 3.9x with a margin
+// of (rings + 2) * 1.5 mean edges every time (the reach never learned), 4.9x at
+// 64ba349. A margin too tight would show as margin redos. The output is the same
+// either way: only what is read changes.
+TEST(SimplifyOoc, GatherMarginFollowsTheMeasuredHaloReach) {
+  TempDir dir;
+  const auto r = simplify_with_report(dir, generate(dir, "--faces 300000"), "--ratio 0.01 --mem-budget 80M");
+  ASSERT_GE(r["out_of_core_epochs"].get<int>(), 2);
+  EXPECT_GE(r["reach_gathers"].get<uint64_t>(), r["patches"].get<uint64_t>());
+  EXPECT_LE(r["margin_redos"].get<uint64_t>(), 2u);
+  const double gathered = r["gathered_faces_total"].get<double>(), built = r["patch_faces_total"].get<double>();
+  EXPECT_LT(gathered, 3.3 * built) << "the gather keeps " << gathered / built << " times the built patches' faces";
+}
+
 // Two clusters on 300k faces: each owner's patch (owned + halo) is more than a patch
 // may hold under 110M, so the run must split owners into parts (a finer partition)
 // rather than run a patch over its lease; the output is still the in-core one.
