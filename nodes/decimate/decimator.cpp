@@ -35,6 +35,20 @@ double load_cost(const std::vector<double>& costs, uint32_t corner) {
 void store_cost(std::vector<double>& costs, uint32_t corner, double value) {
   std::atomic_ref<double>(costs[corner]).store(value, std::memory_order_relaxed);
 }
+// falive_: kFaceAlive, and the validity of the edge at each corner (slot k: the two
+// bits kEdgeValid / kEdgeInvalid << kValidityShift[k], both clear when unknown); a dead
+// face is 0. Read and written concurrently in prepare's passes: atomic, relaxed.
+constexpr uint8_t kFaceAlive = 1;
+constexpr uint8_t kEdgeValid = 1, kEdgeInvalid = 2;
+constexpr unsigned kValidityShift[3] = {1, 3, 5};
+uint8_t load_face(const std::vector<uint8_t>& falive, size_t f) {
+  return std::atomic_ref<uint8_t>(const_cast<uint8_t&>(falive[f])).load(std::memory_order_relaxed);
+}
+// Forgets the validity of face f's edges (alive: concurrent forgets store the same value).
+void forget_validity(std::vector<uint8_t>& falive, size_t f) {
+  if (load_face(falive, f) > kFaceAlive)
+    std::atomic_ref<uint8_t>(falive[f]).store(kFaceAlive, std::memory_order_relaxed);
+}
 // dirty_ value of a vertex whose refresh a round with a known cut skipped.
 constexpr uint8_t kDirtyStale = 2;
 // dirty_ value of a stale vertex next to a touched one (its edges' deviation charges
@@ -236,7 +250,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   fv_ = std::move(in.faces);
   fgid_ = std::move(in.face_gids);
   fowned_ = std::move(in.owned_face);
-  falive_.assign(fv_.size(), 1);
+  falive_.assign(fv_.size(), kFaceAlive);
   faces_alive_ = fv_.size();
   corner_cost_.assign(3 * fv_.size(), kUnknownCost);
 
@@ -577,9 +591,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       if (o.key.cost != kSkipEdge && o.key < bound) continue;
     } else {
       checked = true;
-      // The same function of the same inputs as quadric_cost's position: the same bits.
-      const Vec3 p = o.has_position ? o.position : edge_position(v, o.other);
-      if (collapse_valid(v, corners, s.fan, o.other, p)) {
+      if (edge_valid(v, corners, s.fan, o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr)) {
         best_[v] = o.other;
         best_cost_[v] = o.key.cost;
         return;
@@ -588,6 +600,26 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
     o = s.options.back();
     s.options.pop_back();
   }
+}
+
+bool PatchDecimator::edge_valid(uint32_t v, std::span<const uint32_t> corners_v,
+                                std::span<const FanEdge> fan_v, uint32_t w, uint32_t corner,
+                                uint32_t twin, const Vec3* position) {
+  // collapse_valid(v, .., w, p) == collapse_valid(w, .., v, p) (every test is symmetric
+  // in the endpoints, and p is the edge's position either way), a function of both
+  // endpoints' faces, border flags and their vertices' positions: all of which change
+  // only when an endpoint is touched, and then prepare() forgets the edge's validity
+  // (it forgets it in every face of a touched vertex, which hold both corners of each
+  // of its edges). The edge's smaller corner holds it, so both ends find it.
+  const uint32_t at = twin == kNone ? corner : std::min(corner, twin);
+  const unsigned shift = kValidityShift[at % 3];
+  const uint8_t known = (load_face(falive_, at / 3) >> shift) & 3u;
+  if (known) return known == kEdgeValid;
+  // The same function of the same inputs as quadric_cost's position: the same bits.
+  const bool valid = collapse_valid(v, corners_v, fan_v, w, position ? *position : edge_position(v, w));
+  std::atomic_ref<uint8_t>(falive_[at / 3])
+      .fetch_or(static_cast<uint8_t>((valid ? kEdgeValid : kEdgeInvalid) << shift), std::memory_order_relaxed);
+  return valid;
 }
 
 // Inlined into refresh_best, its only caller (a call per edge was a tenth of its cost).
@@ -734,7 +766,7 @@ void PatchDecimator::compact_list(uint32_t v) {
   const uint32_t n = adj_count_[v];
   uint32_t kept = 0;
   for (uint32_t i = 0; i < n; ++i)
-    if (falive_[list[i] / 3]) list[kept++] = list[i];
+    if (load_face(falive_, list[i] / 3)) list[kept++] = list[i];
   adj_count_[v] = kept;
 }
 
@@ -776,6 +808,7 @@ void PatchDecimator::compact_storage() {
     for (int k = 0; k < 3; ++k) fv_[nf][k] = remap[fv_[f][k]];
     fgid_[nf] = fgid_[f];
     for (int k = 0; k < 3; ++k) corner_cost_[3 * nf + k] = corner_cost_[3 * f + k];
+    falive_[nf] = falive_[f];  // alive, with its edges' validity
     if (!fowned_.empty()) fowned_[nf] = fowned_[f];
     ++nf;
   }
@@ -783,7 +816,7 @@ void PatchDecimator::compact_storage() {
   fgid_.resize(nf);
   corner_cost_.resize(3 * nf);
   if (!fowned_.empty()) fowned_.resize(nf);
-  falive_.assign(nf, 1);
+  falive_.resize(nf);
   for (auto& t : passthrough_)
     for (auto& v : t) v = remap[v];
   rebuild_adjacency(0);
@@ -815,6 +848,9 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     raise_flag(dirty_[v]);
     for (uint32_t c : corners_of(v)) {
       for (uint32_t x : fv_[c / 3]) raise_dirty(dirty_[x]);
+      // v's faces changed, so did the validity of v's edges (and maybe of the face's
+      // third edge: forgotten too, which only costs a check).
+      forget_validity(falive_, c / 3);
       // v's faces changed, so did the deviation charge of every edge at v: reset its
       // corners v -> next and prev -> v in each face (both corners of v's edges lie in
       // faces of v). The face's third edge joins two other vertices; its charge changed
@@ -943,6 +979,7 @@ void PatchDecimator::set_params(const DecimateParams& params) {
   if (params.deviation_weight != params_.deviation_weight)
     std::fill(corner_cost_.begin(), corner_cost_.end(), kUnknownCost);
   params_ = params;
+  for (uint8_t& f : falive_) f = f ? kFaceAlive : 0;  // the guards changed: validity unknown
   std::fill(dirty_.begin(), dirty_.end(), uint8_t{1});
   std::fill(touched_.begin(), touched_.end(), uint8_t{1});
   candidates_.clear();
@@ -1128,7 +1165,7 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     out.quadrics.push_back(quadric_[v]);
     out.locked.push_back((vflag_[v] & kLocked) ? 1 : 0);
     uint32_t degree = 0;
-    for (uint32_t c : corners_of(v)) degree += falive_[c / 3];
+    for (uint32_t c : corners_of(v)) degree += falive_[c / 3] != 0;
     out.degrees.push_back(degree);
     out.trusted.push_back((vflag_[v] & kUntrusted) ? 0 : 1);
     out.untrusted_vertices += (vflag_[v] & kUntrusted) ? 1 : 0;

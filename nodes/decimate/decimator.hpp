@@ -300,6 +300,10 @@ class PatchDecimator {
   // fan_a: fan_neighbors(a, corners_a).
   bool collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, std::span<const FanEdge> fan_a,
                       uint32_t b, const Vec3& p) const;
+  // collapse_valid of edge (v, w) at `corner` / `twin`, from falive_ when known
+  // (`position`, which may be null, is then not needed), else checked and cached.
+  bool edge_valid(uint32_t v, std::span<const uint32_t> corners_v, std::span<const FanEdge> fan_v,
+                  uint32_t w, uint32_t corner, uint32_t twin, const Vec3* position);
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
   EdgeKey lme_key(uint32_t v) const;
@@ -337,6 +341,9 @@ class PatchDecimator {
   // faces; corner c = 3 * face + slot
   std::vector<std::array<uint32_t, 3>> fv_;
   std::vector<uint64_t> fgid_;
+  // Non-zero iff the face is alive; bits 1-6: the validity (collapse_valid) of the edge
+  // at each corner as last checked, kept at the edge's smaller corner and forgotten
+  // when a vertex of the face is touched (see edge_valid in decimator.cpp).
   std::vector<uint8_t> falive_;
   // Cost of the edge (corner's vertex, next one); NaN: unknown. With a deviation charge
   // one corner of an edge holds the full cost, the other its quadric part (see
