@@ -11,6 +11,8 @@
 #include <limits>
 #include <numeric>
 #include <stdexcept>
+#include <type_traits>
+#include <utility>
 
 namespace qemflow::nodes {
 namespace {
@@ -146,6 +148,87 @@ void neighbor_counts(uint32_t v, const std::vector<uint32_t>& faces,
   }
 }
 
+// x's low 21 bits, two zero bits after each (a Morton code's lane).
+uint64_t spread_bits21(uint64_t x) {
+  x &= 0x1fffff;
+  x = (x | x << 32) & 0x1f00000000ffffull;
+  x = (x | x << 16) & 0x1f0000ff0000ffull;
+  x = (x | x << 8) & 0x100f00f00f00f00full;
+  x = (x | x << 4) & 0x10c30c30c30c30c3ull;
+  x = (x | x << 2) & 0x1249249249249249ull;
+  return x;
+}
+
+// Renumbers the patch's vertices along a Z-order (Morton) curve of their positions and
+// its faces by their smallest vertex in that order. The rounds visit vertices in local
+// order and each visit reads its neighbours' and their faces' state: in this order a
+// vertex's rings lie in a few nearby stretches of every array, however the input was
+// numbered. Nothing computed depends on local numbering (every order that matters is
+// by global ids: candidates by key, sums over a vertex's faces by global face id,
+// output by global ids).
+void renumber_for_locality(PatchInput& in) {
+  const size_t nv = in.positions.size(), nf = in.faces.size();
+  Vec3 lo, hi;
+  lo.fill(std::numeric_limits<double>::infinity());
+  hi.fill(-std::numeric_limits<double>::infinity());
+  for (const Vec3& p : in.positions)
+    for (int k = 0; k < 3; ++k)
+      if (std::isfinite(p[k])) {
+        lo[k] = std::min(lo[k], p[k]);
+        hi[k] = std::max(hi[k], p[k]);
+      }
+  const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  if (nv < 2 || !(extent > 0.0) || !std::isfinite(extent)) return;
+  for (const auto& t : in.faces)
+    if (t[0] >= nv || t[1] >= nv || t[2] >= nv) return;  // not a mesh: left as given
+  const double scale = double((1u << 21) - 1) / extent;
+  auto lane = [&](double x, int k) -> uint64_t {
+    const double q = (x - lo[k]) * scale;  // in [0, 2^21 - 1] when finite
+    return std::isfinite(q) ? spread_bits21(static_cast<uint64_t>(std::clamp(q, 0.0, double((1u << 21) - 1)))) : 0;
+  };
+  std::vector<std::pair<uint64_t, uint32_t>> by_code(nv);
+  for (uint32_t v = 0; v < nv; ++v) {
+    const Vec3& p = in.positions[v];
+    by_code[v] = {lane(p[0], 0) | lane(p[1], 1) << 1 | lane(p[2], 2) << 2, v};
+  }
+  std::sort(by_code.begin(), by_code.end());
+  std::vector<uint32_t> old_of(nv), new_of(nv);
+  for (uint32_t i = 0; i < nv; ++i) {
+    old_of[i] = by_code[i].second;
+    new_of[by_code[i].second] = i;
+  }
+  release_memory(by_code);
+  auto permute = [](auto& values, const std::vector<uint32_t>& from) {
+    if (values.empty()) return;
+    std::remove_reference_t<decltype(values)> moved(from.size());
+    for (size_t i = 0; i < from.size(); ++i) moved[i] = values[from[i]];
+    values = std::move(moved);
+  };
+  permute(in.positions, old_of);
+  permute(in.vertex_gids, old_of);
+  permute(in.incomplete, old_of);
+  permute(in.owned_vertex, old_of);
+  permute(in.locked, old_of);
+  permute(in.quadrics, old_of);
+  permute(in.best_gids, old_of);
+  permute(in.best_costs, old_of);
+  release_memory(old_of);
+  std::vector<uint64_t> by_first(nf);  // smallest new vertex id << 32 | old face index
+  for (uint32_t f = 0; f < nf; ++f) {
+    auto& t = in.faces[f];
+    for (uint32_t& v : t) v = new_of[v];
+    by_first[f] = uint64_t{std::min({t[0], t[1], t[2]})} << 32 | f;
+  }
+  release_memory(new_of);
+  std::sort(by_first.begin(), by_first.end());
+  std::vector<uint32_t> face_from(nf);
+  for (size_t i = 0; i < nf; ++i) face_from[i] = static_cast<uint32_t>(by_first[i]);
+  release_memory(by_first);
+  permute(in.faces, face_from);
+  permute(in.face_gids, face_from);
+  permute(in.owned_face, face_from);
+}
+
 }  // namespace
 
 size_t cost_bin(double cost) {
@@ -190,6 +273,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
     throw std::invalid_argument("PatchDecimator: array sizes disagree");
   if (nv >= kNone || in.faces.size() >= kNone / 3)
     throw std::invalid_argument("PatchDecimator: patch too large for 32-bit local ids");
+  renumber_for_locality(in);
   pos_ = std::move(in.positions);
   vgid_ = std::move(in.vertex_gids);
   auto nonzero = [](uint8_t x) { return x != 0; };
@@ -205,24 +289,6 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   release_memory(in.owned_vertex);
   release_memory(in.incomplete);
 
-  // Faces in ascending global id: the canonical order of every per-vertex sum.
-  if (!std::is_sorted(in.face_gids.begin(), in.face_gids.end())) {
-    std::vector<uint32_t> order(in.faces.size());
-    std::iota(order.begin(), order.end(), 0u);
-    std::sort(order.begin(), order.end(),
-              [&](uint32_t a, uint32_t b) { return in.face_gids[a] < in.face_gids[b]; });
-    std::vector<std::array<uint32_t, 3>> faces(order.size());
-    std::vector<uint64_t> gids(order.size());
-    std::vector<uint8_t> owned(in.owned_face.empty() ? 0 : order.size());
-    for (size_t i = 0; i < order.size(); ++i) {
-      faces[i] = in.faces[order[i]];
-      gids[i] = in.face_gids[order[i]];
-      if (!owned.empty()) owned[i] = in.owned_face[order[i]];
-    }
-    in.faces = std::move(faces);
-    in.face_gids = std::move(gids);
-    in.owned_face = std::move(owned);
-  }
   // Faces with a repeated vertex have no normal or manifold structure: pass them
   // through and lock their vertices.
   size_t kept = 0;
@@ -401,7 +467,9 @@ void PatchDecimator::compute_quadrics() {
   tbb::enumerable_thread_specific<Scratch> scratch;
   parallel_over_with(pos_.size(), scratch, [&](size_t vi, Scratch& s) {
     const uint32_t v = static_cast<uint32_t>(vi);
-    gather_faces(v, s.faces);  // ascending face order == ascending global face id
+    // v's faces in ascending global id: the canonical order of every per-vertex sum.
+    gather_faces(v, s.faces);
+    std::sort(s.faces.begin(), s.faces.end(), [&](uint32_t f, uint32_t g) { return fgid_[f] < fgid_[g]; });
     Quadric q;
     for (uint32_t f : s.faces) {
       const auto& t = fv_[f];
@@ -771,8 +839,8 @@ void PatchDecimator::compact_list(uint32_t v) {
 }
 
 void PatchDecimator::compact_storage() {
-  // Move live vertices and faces to the front, keeping their relative order (faces
-  // stay in ascending global id), then rebuild the corner lists.
+  // Move live vertices and faces to the front, keeping their relative order, then
+  // rebuild the corner lists.
   std::vector<uint32_t> remap(pos_.size(), kNone);
   uint32_t nv = 0;
   for (uint32_t v = 0; v < pos_.size(); ++v) {

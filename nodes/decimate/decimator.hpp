@@ -5,10 +5,13 @@
 // Contract
 // - Input: vertices (position, global id; optional flags `incomplete`, `owned`,
 //   `locked`; optional quadric) and triangles (local vertex refs, global face id,
-//   optional `owned` flag). Faces are processed in ascending global face id; vertex
-//   quadrics, when not given, are summed in that order (area-weighted face planes
-//   first, then boundary/fold-edge planes in face order and corner order), so any patch
-//   holding a vertex's whole 1-ring computes the same bits.
+//   optional `owned` flag). Vertex quadrics, when not given, are summed in ascending
+//   global face id (area-weighted face planes first, then boundary/fold-edge planes in
+//   face order and corner order), so any patch holding a vertex's whole 1-ring computes
+//   the same bits.
+// - Local ids (Candidate::keep / remove, vertex_gid(), trusted()) are the decimator's
+//   own numbering, not the input's: vertices along a Z-order curve of their positions,
+//   faces by their first vertex (cache locality). No result depends on it.
 // - A round has three steps, each deterministic and independent of thread count:
 //     prepare_round()  refresh every vertex's best (cheapest valid) edge where the mesh
 //                      changed, find the LMEs and the independent set (candidates);
