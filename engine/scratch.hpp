@@ -193,6 +193,11 @@ class ScratchStore {
   uint64_t bytes_written() const { return written_; }
   uint64_t bytes_read() const { return read_; }
   uint64_t peak_bytes_on_disk() const { return peak_on_disk_; }
+  // Bytes of the files not removed yet (written by every append that has returned).
+  uint64_t bytes_on_disk() {
+    std::lock_guard lock(mutex_);
+    return on_disk_;
+  }
 
  private:
   struct File {

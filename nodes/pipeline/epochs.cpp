@@ -242,7 +242,8 @@ struct MeshState {
 
 // Encodes and queues a chunk for writing (the I/O thread fills in the offset).
 void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta,
-                         uint64_t blob_size, std::shared_ptr<Bytes> encoded, Lease carried) {
+                         uint64_t blob_size, std::shared_ptr<Bytes> encoded, Lease carried,
+                         const char* stage = "epochs") {
   size_t index;
   {
     std::lock_guard lock(state.mutex);
@@ -257,7 +258,7 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
     state.faces += meta.faces;
     state.blob_bytes_total += blob_size;
   }
-  job.stage("epochs").bytes_written += encoded->size();
+  job.stage(stage).bytes_written += encoded->size();
   auto held = std::make_shared<Lease>(std::move(carried));
   const uint32_t file = state.file;
   job.io().submit(
@@ -275,10 +276,10 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
 }
 
 void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta, const Bytes& blob,
-                 Lease carried) {
+                 Lease carried, const char* stage) {
   write_encoded_chunk(job, scratch, state, meta, blob.size(),
                       std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size())),
-                      std::move(carried));
+                      std::move(carried), stage);
 }
 
 void finish_state(Job& job, ScratchStore& scratch, MeshState& state) {
@@ -379,6 +380,19 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
   }
 }
 
+void remove_load_files(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh) {
+  std::vector<uint32_t> files;
+  for (const auto& frames : mesh.blocks)
+    for (const FrameRef& f : frames) files.push_back(f.file);
+  for (const auto& frames : mesh.vertices.windows)
+    for (const FrameRef& f : frames) files.push_back(f.file);
+  std::sort(files.begin(), files.end());
+  files.erase(std::unique(files.begin(), files.end()), files.end());
+  job.io().call("remove blocks", [&] {
+    for (uint32_t file : files) scratch.remove(file);
+  });
+}
+
 // Morton code of a point in a box (10 bits per axis): chunks of spatially close faces.
 uint32_t morton(const Point& p, const Box& box) {
   uint32_t code = 0;
@@ -461,7 +475,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
           std::lock_guard lock(outs_mutex);
           result = std::move(outs[slot]);
         }
-        for (auto& o : result) write_chunk(job, scratch, state, o.meta, o.blob, Lease());
+        for (auto& o : result) write_chunk(job, scratch, state, o.meta, o.blob, Lease(), "convert");
         job.progress(0.3 * double(++done) / double(frames.size()), "convert");
       },
       250);
@@ -1284,6 +1298,11 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,
                                                     std::min<uint64_t>(1024, options.chunk_faces), options.chunk_faces);
   convert_blocks(job, scratch, mesh, partition, chunk_faces, *state);
+  // The conversion read the blocks (and an out-of-core load's vertex windows) for the
+  // last time: their disk goes back before the epochs write each state beside the last
+  // (at 200M faces about 6 GB of 31 GB).
+  remove_load_files(job, scratch, mesh);
+  st.scratch_epochs_start_bytes = scratch.bytes_on_disk();
 
   Runner runner{job, scratch, options, st};
   runner.patches = partition.clusters;

@@ -93,6 +93,9 @@ struct OocStats {
   // checked against.
   uint64_t in_core_start_rss = 0, in_core_peak_rss = 0;
   uint64_t patch_faces_max = 0;      // largest patch (owned + halo)
+  // Scratch on disk as the epochs start: the first state alone, the blocks it was
+  // converted from being removed by then.
+  uint64_t scratch_epochs_start_bytes = 0;
   // Summed over the out-of-core patch builds (redos included): faces read by the gathers
   // (owned + every face the box filter kept), faces of the built patches (owned + halo)
   // and owned faces; their ratios say what the halo and the gather cost.
@@ -120,7 +123,9 @@ struct OocResult {
   OocStats stats;
 };
 
-// The epoch loop and the finish on a loaded mesh (blocks in `scratch`).
+// The epoch loop and the finish on a loaded mesh (blocks in `scratch`). Once the blocks
+// are converted to the first state, their scratch files (and an out-of-core load's
+// vertex windows) are removed: `mesh`'s frames may not be read afterwards.
 OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const engine::LoadedMesh& mesh,
                           const OocOptions& options);
 

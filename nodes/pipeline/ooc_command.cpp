@@ -90,6 +90,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["in_core_peak_rss_bytes"] = st.in_core_peak_rss;
     report["in_core_lease_bytes_per_face"] = kInCoreBytesPerFace;
     report["largest_patch_faces"] = st.patch_faces_max;
+    report["scratch_epochs_start_bytes"] = st.scratch_epochs_start_bytes;
     report["gathered_faces_total"] = st.gathered_faces_total;
     report["patch_faces_total"] = st.patch_faces_total;
     report["owned_faces_total"] = st.owned_faces_total;
