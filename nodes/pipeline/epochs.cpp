@@ -168,7 +168,10 @@ class GidTable {
   static constexpr uint32_t kMissing = std::numeric_limits<uint32_t>::max();
 
   template <class GidOf>
-  GidTable(size_t n, GidOf gid_of) {
+  GidTable(size_t n, GidOf gid_of) : GidTable(n, gid_of, [](size_t, uint32_t) { return false; }) {}
+  // `prefer(i, kept)`: record i of a repeated gid replaces the one kept so far.
+  template <class GidOf, class Prefer>
+  GidTable(size_t n, GidOf gid_of, Prefer prefer) {
     size_t slots = 16;
     while (slots < 2 * n) slots *= 2;
     shift_ = 64 - std::countr_zero(slots);
@@ -178,7 +181,7 @@ class GidTable {
       const uint64_t gid = gid_of(i);
       size_t at = slot_of(gid);
       while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
-      if (slots_[at].second == kMissing) slots_[at] = {gid, uint32_t(i)};  // a repeat keeps the first
+      if (slots_[at].second == kMissing || prefer(i, slots_[at].second)) slots_[at] = {gid, uint32_t(i)};
     }
   }
   uint32_t find(uint64_t gid) const {
@@ -762,8 +765,10 @@ struct BuiltPatch {
 };
 
 // Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. The
-// gathered arrays are in read order with repeated vertex records: the first record of
-// a gid stands for it, and only the selection is put in gid / fid order (sorting
+// gathered arrays are in read order (which follows the I/O's timing) with repeated
+// vertex records: the first record of a gid with a known carried best stands for it
+// (copies differ only there, and known ones are equal: as the finish's dedup, so the
+// patch does not depend on the read order), and only the selection is put in gid / fid order (sorting
 // 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
 // `carry_bests`: the records' carried best edges are valid for the pass (PatchInput::best_gids).
 BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests,
@@ -771,8 +776,12 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
   BuiltPatch out;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const VertexRecord* vb = g.vertices.data();
-  // Corner → local vertex through a gid table (a repeated record maps to the first), in parallel.
-  std::optional<GidTable> table(std::in_place, nv, [vb](size_t v) { return vb[v].gid; });
+  // Corner → local vertex through a gid table (a repeated record maps to the first with
+  // a known best), in parallel.
+  std::optional<GidTable> table(std::in_place, nv, [vb](size_t v) { return vb[v].gid; },
+                                [vb](size_t v, uint32_t kept) {
+                                  return vb[kept].best_gid == kBestUnknown && vb[v].best_gid != kBestUnknown;
+                                });
   std::vector<std::array<uint32_t, 3>> local(nf);
   std::atomic<bool> missing = false;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
