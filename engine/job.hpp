@@ -14,6 +14,7 @@
 //   ~20 times a second; it must be cheap and thread-safe.
 #include <oneapi/tbb/task_arena.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdint>
@@ -90,6 +91,10 @@ class Job {
   Job& operator=(const Job&) = delete;
 
   Governor& governor() { return governor_; }
+  // What the job's stages may lease at most: the governor's capacity less what the job
+  // holds for its whole run (the trace buffer). A stage sizing a lease from the bare
+  // capacity would, with --trace, ask for more than can ever be free and wait forever.
+  uint64_t capacity() const { return governor_.capacity() - std::min(governor_.capacity(), trace_lease_.bytes()); }
   IoThread& io() { return *io_; }
   Trace& trace() { return trace_; }
   Activity& activity() { return activity_; }

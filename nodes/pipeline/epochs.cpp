@@ -1066,7 +1066,7 @@ struct Runner {
   // The most a patch may hold: a quarter of the capacity stays free for the gather's
   // frame streams and the export's chunks (they take their own leases, or none, while
   // this one is held: no hold-and-wait on the whole budget).
-  uint64_t patch_cap() const { return job.governor().capacity() / 4 * 3; }
+  uint64_t patch_cap() const { return job.capacity() / 4 * 3; }
 
   // Where the part's owned faces are: the owner's box, cut to the region. (A vertex of
   // an owned face may lie outside it, by less than an edge: the halo margin covers it,
@@ -1186,7 +1186,8 @@ struct Runner {
 
   [[noreturn]] void refuse_part(const Gathered& g) const {
     const uint64_t need = g.found_faces * kPatchBytesPerFace;
-    const uint64_t minimum = need / 3 * 4 + job.governor().baseline();  // patch_cap() is 3/4 of the capacity
+    // patch_cap() is 3/4 of the job's capacity, which is the budget less the baseline and the trace.
+    const uint64_t minimum = need / 3 * 4 + job.governor().baseline() + (job.governor().capacity() - job.capacity());
     throw Error(ErrorKind::resource,
                 "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings()) +
                     "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
@@ -1278,7 +1279,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   st.input_vertices = mesh.vertex_count;
   st.target_faces = target_face_count(mesh.face_count, options.simplify);
   const EpochOptions epoch = options.simplify.epochs;
-  const uint64_t capacity = job.governor().capacity();
+  const uint64_t capacity = job.capacity();
   // The finish holds its lease while it gathers the state, whose frames need memory of
   // their own: a lease of the whole capacity would wait for them forever. So a forced
   // threshold (tests) is capped at what the budget allows.

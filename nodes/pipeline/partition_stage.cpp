@@ -76,7 +76,7 @@ Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, cons
   engine::StageTimer timer(job, "partition");
   Partition result;
   // The capacity (budget less the measured baseline) is what patches may hold.
-  result.clusters = clusters_for(mesh, job.governor().capacity(), options);
+  result.clusters = clusters_for(mesh, job.capacity(), options);
   if (result.clusters <= 1 || mesh.kept_faces() == 0) {
     result.clusters = 1;
     return result;

@@ -305,6 +305,28 @@ TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), budget);
 }
 
+// With --trace the job holds the trace buffer (2^18 events, 12 MiB) for the whole run;
+// patches sized from the governor's bare capacity asked for more than could ever be
+// free and waited forever (review7). Stages now size from Job::capacity(), which leaves
+// the trace out. Under `timeout`, so a hang fails the test.
+TEST(SimplifyOoc, ATraceAtASmallBudgetIsNoHang) {
+  TempDir dir;
+  const auto mesh = generate(dir, "--faces 300000");
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
+  const auto report = dir / "r.json";
+  std::string out;
+  ASSERT_EQ(run_command("timeout 300 " + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+                            " --ratio 0.01 --mem-budget 80M --threads 1 --trace " + (dir / "t.json").string() +
+                            " --quiet --report " + report.string() + " --scratch " + dir.path().string(),
+                        &out),
+            0)
+      << out;
+  const auto r = read_json(report);
+  EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+}
+
 TEST(SimplifyOoc, AForcedFinishLargerThanTheBudgetAllowsIsCappedNotAHang) {
   // --in-core-faces 500000 (the whole mesh: 85 MB at 170 B a face) at 100M asks for a
   // finish lease of the whole capacity (~70 MiB); the finish's gather then waited forever
