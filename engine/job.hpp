@@ -91,10 +91,14 @@ class Job {
   Job& operator=(const Job&) = delete;
 
   Governor& governor() { return governor_; }
-  // What the job's stages may lease at most: the governor's capacity less what the job
-  // holds for its whole run (the trace buffer). A stage sizing a lease from the bare
-  // capacity would, with --trace, ask for more than can ever be free and wait forever.
-  uint64_t capacity() const { return governor_.capacity() - std::min(governor_.capacity(), trace_lease_.bytes()); }
+  // What the job holds for its whole run (the trace buffer), and so what its stages may
+  // lease at most: the governor's capacity less that. A stage sizing a lease from the
+  // bare capacity would, with --trace, ask for more than can ever be free and wait
+  // forever; require_fits checks against capacity() (the minimum budget it names
+  // includes the trace).
+  uint64_t held_for_run() const { return trace_lease_.bytes(); }
+  uint64_t capacity() const { return governor_.capacity() - std::min(governor_.capacity(), held_for_run()); }
+  void require_fits(const std::string& owner, uint64_t bytes) const { governor_.require_fits(owner, bytes + held_for_run()); }
   IoThread& io() { return *io_; }
   Trace& trace() { return trace_; }
   Activity& activity() { return activity_; }

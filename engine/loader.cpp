@@ -377,7 +377,7 @@ class Loader {
     // left, through leases that never wait while holding anything.
     uint64_t reserve_min = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace));
     uint64_t items_min = 4 * max_input_lease;
-    job_.governor().require_fits(job_.owner("loader"), reserve_min + items_min);
+    job_.require_fits(job_.owner("loader"), reserve_min + items_min);
     uint64_t available = job_.governor().available();
     uint64_t want = std::max(reserve_min, available - std::min(available, std::max(items_min, available / 4)));
     reserve_ = job_.governor().acquire(job_.owner("loader reserve"), reserve_min, want,

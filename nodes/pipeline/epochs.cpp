@@ -1187,7 +1187,7 @@ struct Runner {
   [[noreturn]] void refuse_part(const Gathered& g) const {
     const uint64_t need = g.found_faces * kPatchBytesPerFace;
     // patch_cap() is 3/4 of the job's capacity, which is the budget less the baseline and the trace.
-    const uint64_t minimum = need / 3 * 4 + job.governor().baseline() + (job.governor().capacity() - job.capacity());
+    const uint64_t minimum = need / 3 * 4 + job.governor().baseline() + job.held_for_run();
     throw Error(ErrorKind::resource,
                 "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings()) +
                     "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
@@ -1289,7 +1289,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // The output is made by the in-core finish, which holds at least the target's faces:
   // a target too large for the budget is refused now (DESIGN §3 'Bounded'), not run over
   // it. (Streaming a large output out of core is not implemented.)
-  job.governor().require_fits("the in-core finish of " + std::to_string(st.target_faces) + " output faces",
+  job.require_fits("the in-core finish of " + std::to_string(st.target_faces) + " output faces",
                               uint64_t(double(st.target_faces) * double(kInCoreBytesPerFace) / 0.9));
 
   // A mesh that fits the finish needs no partition (no sampling, clusters or planes):

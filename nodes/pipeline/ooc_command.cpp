@@ -55,8 +55,8 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     {
       engine::StageTimer timer(job, "write");
       const uint64_t bytes = result.points.size() * 24 + result.triangles.size() * 24;
-      engine::Lease lease = job.governor().acquire(job.owner("output"), std::min(bytes, governor.capacity()),
-                                                   std::min(bytes, governor.capacity()));
+      engine::Lease lease = job.governor().acquire(job.owner("output"), std::min(bytes, job.capacity()),
+                                                   std::min(bytes, job.capacity()));
       io::IndexedMesh out{std::move(result.points), std::move(result.triangles)};
       io::WriteOptions write_options;
       write_options.double_precision = command.double_precision;

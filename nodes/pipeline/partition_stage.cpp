@@ -90,7 +90,7 @@ Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, cons
   auto peak = [&](uint64_t samples) {
     return partition::partition_peak_bytes(samples, clusters, threads) + samples * thread_sampling;
   };
-  job.governor().require_fits(job.owner("partition"), peak(min_samples) + (8ull << 20));
+  job.require_fits(job.owner("partition"), peak(min_samples) + (8ull << 20));
   engine::Lease lease = job.governor().acquire(job.owner("partition"), peak(min_samples),
                                                std::max(peak(min_samples), std::min(peak(wanted), job.governor().available() / 2)),
                                                [&] { return job.stopped(); });

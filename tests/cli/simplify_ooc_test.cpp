@@ -35,10 +35,13 @@ std::filesystem::path generate(const TempDir& dir, const std::string& gen_args) 
 
 // `qemflow simplify MESH DIR/out.ply ARGS` out of core with its scratch in DIR, in a
 // child process (so the report's peak RSS, VmHWM, is the run's own); returns the report.
-nlohmann::json simplify_with_report(const TempDir& dir, const std::filesystem::path& mesh, const std::string& args) {
+// With `timeout_seconds`, under `timeout`: a hang fails the test instead of stalling the suite.
+nlohmann::json simplify_with_report(const TempDir& dir, const std::filesystem::path& mesh, const std::string& args,
+                                    int timeout_seconds = 0) {
   const auto report = dir / "r.json";
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " " + args + " --quiet --report " +
-         report.string() + " --scratch " + dir.path().string());
+  const std::string timeout = timeout_seconds ? "timeout " + std::to_string(timeout_seconds) + " " : "";
+  run_ok(timeout + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " " + args +
+         " --quiet --report " + report.string() + " --scratch " + dir.path().string());
   return read_json(report);
 }
 
@@ -313,15 +316,8 @@ TEST(SimplifyOoc, ATraceAtASmallBudgetIsNoHang) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 300000");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
-  const auto report = dir / "r.json";
-  std::string out;
-  ASSERT_EQ(run_command("timeout 300 " + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-                            " --ratio 0.01 --mem-budget 80M --threads 1 --trace " + (dir / "t.json").string() +
-                            " --quiet --report " + report.string() + " --scratch " + dir.path().string(),
-                        &out),
-            0)
-      << out;
-  const auto r = read_json(report);
+  const auto r = simplify_with_report(
+      dir, mesh, "--ratio 0.01 --mem-budget 80M --threads 1 --trace " + (dir / "t.json").string(), 300);
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
   EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
@@ -336,15 +332,8 @@ TEST(SimplifyOoc, AForcedFinishLargerThanTheBudgetAllowsIsCappedNotAHang) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 500000");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
-  const auto report = dir / "r.json";
-  std::string out;
-  ASSERT_EQ(run_command("timeout 300 " + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
-                            " --ratio 0.01 --clusters 2 --in-core-faces 500000 --mem-budget 100M --quiet --report " +
-                            report.string() + " --scratch " + dir.path().string(),
-                        &out),
-            0)
-      << out;
-  const auto r = read_json(report);
+  const auto r =
+      simplify_with_report(dir, mesh, "--ratio 0.01 --clusters 2 --in-core-faces 500000 --mem-budget 100M", 300);
   const uint64_t capacity = r["budget_bytes"].get<uint64_t>() - r["baseline_bytes"].get<uint64_t>();
   EXPECT_LE(r["in_core_faces"].get<uint64_t>() * r["in_core_lease_bytes_per_face"].get<uint64_t>(),
             uint64_t(0.9 * double(capacity)));
