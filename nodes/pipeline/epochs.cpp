@@ -197,6 +197,50 @@ class GidTable {
   std::vector<std::pair<uint64_t, uint32_t>> slots_;
 };
 
+// The gathered vertex records, one per gid, appended to `records` (which must not
+// reallocate: reserved at its upper bound): a gid's records in several chunks are equal
+// copies but for the carried best, and the one kept is the first with a known best, else
+// the first (build_patch's rule, so the patch is the same). Without this, a state whose
+// chunks share few vertices (the first state of an input in random face order: ~2.8
+// records per face, against ~0.6) held ~4x the vertex records the patch lease
+// (kPatchBytesPerFace) counts. An open-addressing table of record indices (4 bytes a
+// slot, the gid read from the record) that doubles as records come.
+class UniqueVertexRecords {
+ public:
+  explicit UniqueVertexRecords(std::vector<VertexRecord>& records) : records_(records) { rehash(1024); }
+  void add(const VertexRecord& r) {
+    if (2 * (records_.size() + 1) > slots_.size()) rehash(2 * slots_.size());
+    size_t at = slot_of(r.gid);
+    for (; slots_[at] != kEmpty; at = (at + 1) & mask_) {
+      VertexRecord& kept = records_[slots_[at]];
+      if (kept.gid != r.gid) continue;
+      if (kept.best_gid == kBestUnknown && r.best_gid != kBestUnknown) kept = r;
+      return;
+    }
+    slots_[at] = uint32_t(records_.size());
+    records_.push_back(r);
+  }
+
+ private:
+  static constexpr uint32_t kEmpty = std::numeric_limits<uint32_t>::max();
+  size_t slot_of(uint64_t gid) const { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift_); }
+  void rehash(size_t slots) {
+    release_memory(slots_);  // the old table is not kept beside the new one
+    slots_.assign(slots, kEmpty);
+    shift_ = 64 - std::countr_zero(slots);
+    mask_ = slots - 1;
+    for (uint32_t i = 0; i < records_.size(); ++i) {
+      size_t at = slot_of(records_[i].gid);
+      while (slots_[at] != kEmpty) at = (at + 1) & mask_;
+      slots_[at] = i;
+    }
+  }
+  std::vector<VertexRecord>& records_;
+  std::vector<uint32_t> slots_;
+  int shift_ = 0;
+  size_t mask_ = 0;
+};
+
 double distance(const Point& a, const Point& b) {
   return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
 }
@@ -543,8 +587,8 @@ struct PatchPart {
 inline constexpr uint32_t kNotInPart = std::numeric_limits<uint32_t>::max();
 
 struct Gathered {
-  // Sorted by fid / by gid and unique for the finish (no part); as read for a part
-  // (a gid's records may repeat: equal copies).
+  // Sorted by fid / by gid for the finish (no part); as read for a part. One record
+  // per gid either way (UniqueVertexRecords).
   std::vector<FaceRecord> faces;
   std::vector<VertexRecord> vertices;
   uint64_t found_faces = 0;  // faces the gather kept (= faces.size() unless over_limit)
@@ -659,6 +703,7 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
   Gathered g;
   g.faces.reserve(std::min(plan.most_faces, limit_faces));
   g.vertices.reserve(plan.most_blob_bytes / sizeof(VertexRecord) + 1);
+  UniqueVertexRecords unique_vertices(g.vertices);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", plan.frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
@@ -719,7 +764,7 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
         if (g.found_faces > limit_faces) g.over_limit = true;
         if (g.over_limit) return;
         g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
-        g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
+        for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
       },
       0);
   if (g.over_limit) {
@@ -738,21 +783,6 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
     tbb::parallel_sort(g.vertices.begin(), g.vertices.end(),
                        [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
   });
-  // A gid's records are equal copies but for the carried best, which one exporting
-  // patch may know and another not: keep a known one (two known ones are equal), so
-  // the result does not depend on the sort's order among equal keys.
-  size_t kept = 0;
-  for (size_t i = 0; i < g.vertices.size(); ++i) {
-    if (kept > 0 && g.vertices[kept - 1].gid == g.vertices[i].gid) {
-      if (g.vertices[kept - 1].best_gid == kBestUnknown) g.vertices[kept - 1] = g.vertices[i];
-      continue;
-    }
-    g.vertices[kept++] = g.vertices[i];
-  }
-  // The repeated records' pages (a few % of the records) would stay resident behind
-  // the kept ones until the array is freed.
-  engine::release_pages(g.vertices.data() + kept, g.vertices.data() + g.vertices.size());
-  g.vertices.resize(kept);
   return g;
 }
 
@@ -765,9 +795,8 @@ struct BuiltPatch {
 };
 
 // Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. The
-// gathered arrays are in read order (which follows the I/O's timing) with repeated
-// vertex records: the first record of a gid with a known carried best stands for it
-// (copies differ only there, and known ones are equal: as the finish's dedup, so the
+// gathered arrays are in read order (which follows the I/O's timing), one vertex
+// record per gid (UniqueVertexRecords kept the one with a known carried best, so the
 // patch does not depend on the read order), and only the selection is put in gid / fid order (sorting
 // 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
 // `carry_bests`: the records' carried best edges are valid for the pass (PatchInput::best_gids).
@@ -776,12 +805,8 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
   BuiltPatch out;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const VertexRecord* vb = g.vertices.data();
-  // Corner → local vertex through a gid table (a repeated record maps to the first with
-  // a known best), in parallel.
-  std::optional<GidTable> table(std::in_place, nv, [vb](size_t v) { return vb[v].gid; },
-                                [vb](size_t v, uint32_t kept) {
-                                  return vb[kept].best_gid == kBestUnknown && vb[v].best_gid != kBestUnknown;
-                                });
+  // Corner → local vertex through a gid table, in parallel.
+  std::optional<GidTable> table(std::in_place, nv, [vb](size_t v) { return vb[v].gid; });
   std::vector<std::array<uint32_t, 3>> local(nf);
   std::atomic<bool> missing = false;
   tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
