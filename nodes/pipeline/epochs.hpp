@@ -131,7 +131,9 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 
 // Bytes per gathered face of a patch while it is gathered and decimated, and per face of
 // the in-core finish; the budget rules use them. A patch peaks while the gathered state
-// (face record 40 B + vertex records ~68 B per face), the BFS arrays and the built
+// (face record 40 B + vertex records ~68 B per face: one per gid, however many chunks
+// hold it, for the first state of an input in random face order holds ~2.8 records per
+// face), the BFS arrays and the built
 // PatchInput (~88 B) are alive together: measured on 1M faces at 96M (VmHWM reset per
 // phase, above the RSS before the gather, with 120-byte records and no carried bests),
 // the gather peaks at 132-237 B and the build at 188-274 B per gathered face; the
