@@ -256,7 +256,12 @@ struct PatchDecimator::Scratch {
     Vec3 position;
   };
   std::vector<Option> options;
-  std::vector<FanEdge> fan;
+  // fan_neighbors(): the first fan_size entries of fan_store (sized, never shrunk, so
+  // filling it is plain stores rather than push_back's capacity checks).
+  std::vector<FanEdge> fan_store;
+  std::vector<uint32_t> fan_prev;  // the vertex before v in each of its faces
+  uint32_t fan_size = 0;
+  std::span<const FanEdge> fan() const { return {fan_store.data(), fan_size}; }
   std::vector<uint32_t> next, prev;  // fan_links()
   std::vector<double> areas;
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
@@ -611,7 +616,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   fan_neighbors(v, corners, s);
   s.options.clear();
   const bool charged = params_.deviation_weight > 0.0;
-  for (const auto& [w, corner, twin] : s.fan) {
+  for (const auto& [w, corner, twin] : s.fan()) {
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
     // Unknown costs start from their quadric part, a lower bound of the cost: the
     // deviation part is computed only for options that could still win.
@@ -659,7 +664,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       if (o.key.cost != kSkipEdge && o.key < bound) continue;
     } else {
       checked = true;
-      if (edge_valid(v, corners, s.fan, o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr)) {
+      if (edge_valid(v, corners, s.fan(), o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr)) {
         best_[v] = o.other;
         best_cost_[v] = o.key.cost;
         return;
@@ -801,20 +806,31 @@ void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners
   // the corner whose edge (corner vertex -> next vertex) joins it to v, and the twin
   // corner of the same edge in the face on its other side (w -> v), if any: both
   // cache the edge's cost.
-  fan_links(corners, s);
   const uint32_t n = static_cast<uint32_t>(corners.size());
-  std::vector<FanEdge>& out = s.fan;
-  out.clear();
-  for (uint32_t i = 0; i < n; ++i) out.push_back({s.next[i], corners[i], kNone});
+  if (s.fan_store.size() < 2 * size_t{n}) {  // a border fan lists up to 2n
+    s.fan_store.resize(2 * size_t{n});
+    s.fan_prev.resize(2 * size_t{n});
+  }
+  FanEdge* out = s.fan_store.data();
+  uint32_t* prev = s.fan_prev.data();
+  for (uint32_t i = 0; i < n; ++i) {
+    const uint32_t c = corners[i], slot = c % 3;
+    const auto& t = fv_[c / 3];
+    out[i] = {t[kNextSlot[slot]], c, kNone};
+    prev[i] = t[kPrevSlot[slot]];
+  }
+  uint32_t count = n;
   const bool border = (vflag_[v] & kBorder) != 0;
   for (uint32_t i = 0; i < n; ++i) {
     const uint32_t c = corners[i], before = c - c % 3 + kPrevSlot[c % 3];  // prev -> v
-    const uint32_t at = index_of(s.next.data(), n, s.prev[i]);
+    uint32_t at = 0;  // the neighbour after v that is prev[i] (fans are short: a scan)
+    while (at < n && out[at].other != prev[i]) ++at;
     if (at != n)
       out[at].twin = before;
     else if (border)
-      out.push_back({s.prev[i], before, kNone});
+      out[count++] = {prev[i], before, kNone};
   }
+  s.fan_size = count;
 }
 
 void PatchDecimator::update_border(uint32_t v, Scratch& s) {
