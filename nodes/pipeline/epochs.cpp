@@ -6,6 +6,8 @@
 #include <chrono>
 #include <cmath>
 #include <ctime>
+#include <cstddef>
+#include <cstdlib>
 #include <cstring>
 #include <deque>
 #include <limits>
@@ -53,6 +55,54 @@ struct VertexRecord {
   double best_cost = 0.0;
 };
 static_assert(sizeof(VertexRecord) == 136);
+
+// Copies of one vertex's record (written by every patch that exported one of its
+// faces) must agree on all but the carried best, which a copy may lack (kBestUnknown);
+// two known bests must agree too. Checked under QEMFLOW_VERIFY_CARRIED (decimator.hpp):
+// throws naming the gid.
+void check_copies_agree(const VertexRecord& kept, const VertexRecord& copy) {
+  constexpr size_t kState = offsetof(VertexRecord, best_gid);  // gid .. has_quadric, unused
+  const bool state_equal = std::memcmp(&kept, &copy, kState) == 0;
+  const bool bests_equal = kept.best_gid == kBestUnknown || copy.best_gid == kBestUnknown ||
+                           (kept.best_gid == copy.best_gid &&
+                            std::bit_cast<uint64_t>(kept.best_cost) == std::bit_cast<uint64_t>(copy.best_cost));
+  if (state_equal && bests_equal) return;
+  std::string what = state_equal ? "carried best" : "";
+  if (!state_equal) {
+    if (std::memcmp(&kept.position, &copy.position, sizeof kept.position)) what += " position";
+    if (std::memcmp(&kept.quadric, &copy.quadric, sizeof kept.quadric)) what += " quadric";
+    if (kept.degree != copy.degree)
+      what += " degree (" + std::to_string(kept.degree) + " vs " + std::to_string(copy.degree) + ")";
+    if (kept.locked != copy.locked) what += " lock";
+    if (kept.has_quadric != copy.has_quadric) what += " has_quadric";
+    if (!bests_equal) what += " carried best";
+  }
+  throw Error(ErrorKind::internal, "QEMFLOW_VERIFY_CARRIED: two copies of the state record of vertex " +
+                                       std::to_string(kept.gid) + " differ in:" + (state_equal ? " " : "") + what);
+}
+
+// QEMFLOW_FUZZ_ORDER=SEED (epochs.hpp): the seed, 0 when unset. Read once.
+uint64_t order_fuzz_seed() {
+  static const uint64_t seed = [] {
+    const char* value = std::getenv("QEMFLOW_FUZZ_ORDER");
+    return value ? std::strtoull(value, nullptr, 10) : 0ull;
+  }();
+  return seed;
+}
+// A fresh pseudo-random value per call (per gather, per patch build) from the seed.
+uint64_t next_fuzz_salt() {
+  static std::atomic<uint64_t> calls{0};
+  return mix64(order_fuzz_seed() * 0x9E3779B97F4A7C15ull + ++calls) | 1;
+}
+// Puts `items` in a pseudo-random order (Fisher-Yates on next_fuzz_salt()).
+template <class Items>
+void shuffle(Items& items, uint64_t /*seed*/) {
+  uint64_t x = next_fuzz_salt();
+  for (size_t i = items.size(); i > 1; --i) {
+    x = mix64(x + i);
+    std::swap(items[i - 1], items[size_t(x % i)]);
+  }
+}
 
 struct Box {
   Point min{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
@@ -214,6 +264,7 @@ class UniqueVertexRecords {
     for (; slots_[at] != kEmpty; at = (at + 1) & mask_) {
       VertexRecord& kept = records_[slots_[at]];
       if (kept.gid != r.gid) continue;
+      if (verify_) check_copies_agree(kept, r);
       if (kept.best_gid == kBestUnknown && r.best_gid != kBestUnknown) kept = r;
       return;
     }
@@ -236,6 +287,7 @@ class UniqueVertexRecords {
     }
   }
   std::vector<VertexRecord>& records_;
+  const bool verify_ = verify_carried_enabled();
   std::vector<uint32_t> slots_;
   int shift_ = 0;
   size_t mask_ = 0;
@@ -689,6 +741,7 @@ GatherPlan plan_gather(const MeshState& state, const PatchPart* part, double mar
       plan.most_faces += c.meta.faces;
       plan.most_blob_bytes += c.frame.count;
     }
+  if (const uint64_t seed = order_fuzz_seed()) shuffle(plan.frames, seed);
   return plan;
 }
 
@@ -894,6 +947,7 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
   std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
   const bool given_quadrics = nv > 0 && vb[0].has_quadric;
   const bool carried = given_quadrics && carry_bests;
+  const uint64_t fuzz = order_fuzz_seed() ? next_fuzz_salt() : 0;
   // Exact sizes (no growth spikes).
   in.vertex_gids.reserve(kept_v);
   in.positions.reserve(kept_v);
@@ -918,8 +972,10 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
       in.locked.push_back(vb[v].locked);
     }
     if (carried) {
-      in.best_gids.push_back(vb[v].best_gid);
-      in.best_costs.push_back(vb[v].best_cost);
+      // QEMFLOW_FUZZ_ORDER: a third of the bests as a copy without one would give them.
+      const bool dropped = fuzz && mix64(gid ^ fuzz) % 3 == 0;
+      in.best_gids.push_back(dropped ? kBestUnknown : vb[v].best_gid);
+      in.best_costs.push_back(dropped ? 0.0 : vb[v].best_cost);
     }
     if (!whole) {
       uint32_t inside = 0;
@@ -1333,6 +1389,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,
                                                     std::min<uint64_t>(1024, options.chunk_faces), options.chunk_faces);
   convert_blocks(job, scratch, mesh, partition, chunk_faces, *state);
+  if (const uint64_t seed = order_fuzz_seed()) shuffle(state->chunks, seed);
   // The conversion read the blocks (and an out-of-core load's vertex windows) for the
   // last time: their disk goes back before the epochs write each state beside the last
   // (at 200M faces about 6 GB of 31 GB).
