@@ -184,6 +184,10 @@ struct ChunkMeta {
   std::array<Box, kParts> parts;
   static size_t part_of(size_t face, size_t faces) { return face * kParts / faces; }
   double edge_sum = 0;  // summed edge lengths of the chunk's faces (margin estimate)
+  // Summed over the chunk's face corners, 1 / the vertex's degree: the state's chunks
+  // sum to its distinct vertices (each face is in one chunk), where their vertex
+  // records count a vertex once per chunk it is in.
+  double vertex_share = 0;
 };
 
 struct Chunk {
@@ -336,6 +340,10 @@ struct MeshState {
   std::deque<Chunk> chunks;
   std::mutex mutex;
   uint64_t faces = 0;
+  double vertex_shares = 0;  // the chunks' vertex_share summed: vertices()
+  // The distinct vertices of the faces (what the finish's memory rule counts,
+  // in_core_finish_bytes); unreferenced input vertices are not in the state.
+  uint64_t vertices() const { return uint64_t(std::llround(vertex_shares)); }
   uint64_t blob_bytes_total = 0;
 };
 
@@ -355,6 +363,7 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
     c.frame.tag = meta.owner;
     state.chunks.push_back(c);
     state.faces += meta.faces;
+    state.vertex_shares += meta.vertex_share;
     state.blob_bytes_total += blob_size;
   }
   job.stage(stage).bytes_written += encoded->size();
@@ -445,6 +454,7 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           const Point& p1 = out.positions[t[1]];
           const Point& p2 = out.positions[t[2]];
           meta.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
+          for (uint32_t v : t) meta.vertex_share += 1.0 / double(std::max<uint32_t>(1, out.degrees[v]));
           Box& part = meta.parts[ChunkMeta::part_of(j, n)];
           for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
         }
@@ -537,10 +547,12 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
             ++last;
           std::vector<FaceRecord> fr;
           std::vector<VertexRecord> vr;
+          double vertex_share = 0;
           for (size_t i = first; i < last; ++i) {
             const auto& f = faces[by_owner[i].second];
             fr.push_back({f.id, f.vertices, by_owner[i].first, 0});
             for (int k = 0; k < 3; ++k) {
+              vertex_share += 1.0 / double(std::max<uint32_t>(1, f.degree[k]));
               VertexRecord r;
               r.gid = f.vertices[k];
               r.position = f.positions[k];
@@ -554,6 +566,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
                                [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
                    vr.end());
           result.push_back({meta_of(by_owner[first].first, fr, vr), make_blob(fr, vr)});
+          result.back().meta.vertex_share = vertex_share;
           first = last;
         }
         // Hand the results to the sink through the records buffer's slot index.
@@ -1364,9 +1377,14 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // The finish holds its lease while it gathers the state, whose frames need memory of
   // their own: a lease of the whole capacity would wait for them forever. So a forced
   // threshold (tests) is capped at what the budget allows.
-  const uint64_t most_in_core_faces = uint64_t(0.9 * double(capacity)) / kInCoreBytesPerFace;
+  const uint64_t in_core_bytes = uint64_t(0.9 * double(capacity));
+  const uint64_t most_in_core_faces = in_core_bytes / kInCoreBytesPerFace;
   const uint64_t in_core_faces =
       options.in_core_faces ? std::min(options.in_core_faces, most_in_core_faces) : most_in_core_faces;
+  // Faces alone do not size the finish: a soup (--no-weld) has 3 vertices per face.
+  auto fits_in_core = [&](uint64_t faces, uint64_t vertices) {
+    return faces <= in_core_faces && in_core_finish_bytes(faces, vertices) <= in_core_bytes;
+  };
   // The output is made by the in-core finish, which holds at least the target's faces:
   // a target too large for the budget is refused now (DESIGN §3 'Bounded'), not run over
   // it. (Streaming a large output out of core is not implemented.)
@@ -1376,7 +1394,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // A mesh that fits the finish needs no partition (no sampling, clusters or planes):
   // it goes in core at once. An explicit --clusters is kept (tests force epochs so).
   PartitionOptions partition_options = options.partition;
-  if (partition_options.clusters == 0 && mesh.kept_faces() <= in_core_faces) partition_options.clusters = 1;
+  if (partition_options.clusters == 0 && fits_in_core(mesh.kept_faces(), mesh.vertex_count)) partition_options.clusters = 1;
   const Partition partition = partition_blocks(job, scratch, mesh, partition_options);
   st.patches = partition.clusters;
 
@@ -1428,7 +1446,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   };
   {
     engine::StageTimer timer(job, "epochs");
-    while (state->faces > in_core_faces && state->faces > st.target_faces) {
+    while (!fits_in_core(state->faces, state->vertices()) && state->faces > st.target_faces) {
       runner.index_state(*state);
       PatchPlan plan;
       if (!first) {
@@ -1468,13 +1486,19 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // Finish in core: the whole state as one patch (nothing incomplete, all owned).
   engine::StageTimer timer(job, "in core");
   st.in_core_faces = state->faces;
+  st.in_core_vertices = state->vertices();
   runner.index_state(*state);
   engine::reset_peak_resident();  // the finish's own window (the process's peak is kept)
   st.in_core_start_rss = engine::resident_bytes();
-  Lease lease = job.governor().acquire(job.owner("in core"),
-                                       std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
-                                       std::min(capacity, std::max<uint64_t>(1, state->faces) * kInCoreBytesPerFace),
-                                       [&] { return job.stopped(); });
+  // The epochs may stop short of a state that fits (nothing left to collapse: a soup's
+  // isolated triangles): refused here with the minimum budget, before the gather, rather
+  // than run over the budget (or wait forever for a lease of the whole capacity).
+  const uint64_t finish_bytes = std::max<uint64_t>(1, in_core_finish_bytes(state->faces, state->vertices()));
+  job.require_fits("the in-core finish of " + std::to_string(state->faces) + " faces and " +
+                       std::to_string(state->vertices()) + " vertices",
+                   uint64_t(double(finish_bytes) / 0.9));
+  Lease lease = job.governor().acquire(job.owner("in core"), std::min(capacity, finish_bytes),
+                                       std::min(capacity, finish_bytes), [&] { return job.stopped(); });
   PatchInput whole;
   {
     Gathered g = load_candidates(job, scratch, plan_gather(*state, nullptr, 0.0), nullptr);

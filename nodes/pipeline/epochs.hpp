@@ -80,7 +80,8 @@ struct OocOptions {
   // The paper's partition (partition_stage.hpp); clusters 0: from the budget (clusters_for).
   PartitionOptions partition;
   // Finish in core once the state has at most this many faces (at most what the budget
-  // allows: 0.9 of the capacity at kInCoreBytesPerFace); 0: from the budget.
+  // allows: 0.9 of the capacity at kInCoreBytesPerFace, and in_core_finish_bytes with
+  // its vertices too); 0: from the budget.
   // Tests set 1 to keep the out-of-core epochs going to the end.
   uint64_t in_core_faces = 0;
   int initial_rings = 0;             // 0: kTrustSpread * E + kDecisionRadius + 2
@@ -102,6 +103,7 @@ struct OocStats {
   uint64_t patch_splits = 0;         // a patch part halved because it did not fit its lease
   int max_rings = 0;
   uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)
+  uint64_t in_core_vertices = 0;     // their distinct vertices (in_core_finish_bytes)
   // The process's RSS as the finish starts (before its lease) and its high-water mark
   // over the finish (gather, build, decimation, extract): what kInCoreBytesPerFace is
   // checked against.
@@ -169,6 +171,19 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 // input vertex, stayed resident after their lease; both fixed.)
 inline constexpr uint64_t kPatchBytesPerFace = 276;
 inline constexpr uint64_t kInCoreBytesPerFace = 170;
+// The finish's vertices beyond half a vertex per face (the welded meshes 170 B per face
+// was measured on) each cost this much more: an unwelded soup (3 vertices per face)
+// collapses nothing, so its finish also extracts the whole input, and peaks there with
+// the decimator's ~147 B per vertex, the PatchOutput's ~134 and the result's 24 alive
+// together. Measured: the 300k-face soup (900k vertices, --no-weld) finished from
+// 300k faces at 1047 B per face over the RSS at its start (314 MB), so 351 B per
+// vertex beyond F/2; 380 leaves 8%.
+inline constexpr uint64_t kInCoreBytesPerExtraVertex = 380;
+// The finish's lease for a state of `faces` faces and at most `vertices` vertices.
+inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {
+  const uint64_t extra = vertices > faces / 2 ? vertices - faces / 2 : 0;
+  return faces * kInCoreBytesPerFace + extra * kInCoreBytesPerExtraVertex;
+}
 
 // The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured
 // baseline), job, scratch, load, simplify_blocks, write (same bytes as --in-core),

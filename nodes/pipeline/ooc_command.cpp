@@ -86,9 +86,11 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["patch_splits"] = st.patch_splits;
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;
+    report["in_core_vertices"] = st.in_core_vertices;
     report["in_core_start_rss_bytes"] = st.in_core_start_rss;
     report["in_core_peak_rss_bytes"] = st.in_core_peak_rss;
     report["in_core_lease_bytes_per_face"] = kInCoreBytesPerFace;
+    report["in_core_lease_bytes_per_extra_vertex"] = kInCoreBytesPerExtraVertex;
     report["largest_patch_faces"] = st.patch_faces_max;
     report["scratch_epochs_start_bytes"] = st.scratch_epochs_start_bytes;
     report["gathered_faces_total"] = st.gathered_faces_total;
