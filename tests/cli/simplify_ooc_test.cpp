@@ -12,6 +12,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "io/indexed_mesh.hpp"
 #include "tests/test_support.hpp"
 
 namespace qemflow::testing {
@@ -460,6 +461,35 @@ TEST(SimplifyOoc, TargetTooLargeForTheBudgetIsRefused) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 300000");
   expect_refused(dir, mesh, "--ratio 0.9 --mem-budget 64M", 4, "the minimum budget is");
+}
+
+// A triangle soup: the generated mesh with every face given its own 3 vertices, so
+// --no-weld keeps 3 vertices per face (where a welded mesh has ~0.5) and no edge can
+// collapse. The finish's memory is mostly per vertex: sized by faces alone (170 B per
+// face) it held the whole soup at ~1 KB per face, 309 MiB of an 80M budget on 300k faces
+// at 6e6310e (this soup: in core at once, ~100 MB of 64M). Now it counts the vertices
+// (in_core_finish_bytes): what cannot fit is refused with the minimum budget (~129M
+// here); what fits stays under it.
+TEST(SimplifyOoc, UnweldedSoupIsSizedByItsVertices) {
+  TempDir dir;
+  const io::IndexedMesh mesh = io::read_mesh(generate(dir, "--faces 80000"));
+  io::IndexedMesh soup;
+  for (const Triangle& t : mesh.triangles) {
+    const uint64_t first = soup.vertices.size();
+    for (uint64_t v : t) soup.vertices.push_back(mesh.vertices[v]);
+    soup.triangles.push_back({first, first + 1, first + 2});
+  }
+  const auto input = dir / "soup.ply";
+  io::write_mesh(input, soup);
+  expect_refused(dir, input, "--ratio 0.01 --no-weld --mem-budget 64M", 4, "the minimum budget is");
+  const auto r = simplify_with_report(dir, input, "--ratio 0.01 --no-weld --mem-budget 144M");
+  EXPECT_EQ(r["in_core_vertices"].get<uint64_t>(), 3 * soup.triangles.size());
+  EXPECT_EQ(r["output_faces"].get<uint64_t>(), soup.triangles.size());  // nothing collapses
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 144ull << 20);
+  // Welded, the soup is the generated mesh again: out of core under the small budget.
+  const auto welded = simplify_with_report(dir, input, "--ratio 0.01 --mem-budget 64M");
+  EXPECT_EQ(welded["output_faces"].get<uint64_t>(), 800u);
+  EXPECT_LE(welded["peak_rss_bytes"].get<uint64_t>(), 64ull << 20);
 }
 
 TEST(SimplifyOoc, FullScratchIsAResourceErrorAndLeavesNothing) {
