@@ -1140,7 +1140,12 @@ struct Runner {
   // the next pass starts from them, so a split is found once, not every epoch.
   std::vector<std::vector<PatchPart>> owner_parts;
 
+  // A patch's lease per gathered face, from the state's vertices per face (a soup has 6
+  // times a welded mesh's).
+  uint64_t bytes_per_face = kPatchBytesPerFace;
+
   void index_state(const MeshState& state) {
+    bytes_per_face = patch_bytes_per_face(state.faces, state.vertices());
     owner_box.assign(patches, Box{});
     std::vector<double> edge_sum(patches, 0.0);
     owner_faces.assign(patches, 0);
@@ -1201,10 +1206,10 @@ struct Runner {
       // The gather's upper bound from the chunk metas: when it fits, the gather cannot
       // go over; the lease is trimmed to what was found.
       const GatherPlan gather = plan_gather(state, &part, margin);
-      const uint64_t want = std::min(gather.most_faces * kPatchBytesPerFace, patch_cap());
+      const uint64_t want = std::min(gather.most_faces * bytes_per_face, patch_cap());
       Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
       job.check();
-      Gathered g = load_candidates(job, scratch, gather, &part, lease.bytes() / kPatchBytesPerFace);
+      Gathered g = load_candidates(job, scratch, gather, &part, lease.bytes() / bytes_per_face);
       stats.gathered_faces_total += g.found_faces;
       clock.charge(kGather);
       if (g.owned_faces == 0) return true;  // a region without owned faces
@@ -1212,7 +1217,7 @@ struct Runner {
         if (g.owned_faces <= kSmallestPart) refuse_part(g);
         return false;
       }
-      lease.shrink_to(g.faces.size() * kPatchBytesPerFace);
+      lease.shrink_to(g.faces.size() * bytes_per_face);
       const uint64_t owned_faces = g.owned_faces;
       BuiltPatch built;
       job.arena().execute([&] { built = build_patch(g, p, rings, false, carry_bests, gather.owned_boxes); });
@@ -1279,7 +1284,7 @@ struct Runner {
   static constexpr uint64_t kSmallestPart = 2048;
 
   [[noreturn]] void refuse_part(const Gathered& g) const {
-    const uint64_t need = g.found_faces * kPatchBytesPerFace;
+    const uint64_t need = g.found_faces * bytes_per_face;
     // patch_cap() is 3/4 of the job's capacity, which is the budget less the baseline and the trace.
     const uint64_t minimum = need / 3 * 4 + job.governor().baseline() + job.held_for_run();
     throw Error(ErrorKind::resource,

@@ -179,6 +179,15 @@ inline constexpr uint64_t kInCoreBytesPerFace = 170;
 // 300k faces at 1047 B per face over the RSS at its start (314 MB), so 351 B per
 // vertex beyond F/2; 380 leaves 8%.
 inline constexpr uint64_t kInCoreBytesPerExtraVertex = 380;
+// A patch's vertices beyond half a vertex per face (kPatchBytesPerFace's meshes): each
+// is a gathered record (136 B), its PatchInput entries (~130) and the decimator's
+// (~147) while a soup's patch is built and run. The state's ratio is used for every
+// patch (a mesh that is partly soup may still hold more in its soup's patches).
+inline constexpr uint64_t kPatchBytesPerExtraVertex = 400;
+inline uint64_t patch_bytes_per_face(uint64_t faces, uint64_t vertices) {
+  const uint64_t extra = vertices > faces / 2 ? vertices - faces / 2 : 0;
+  return kPatchBytesPerFace + (faces ? extra * kPatchBytesPerExtraVertex / faces : 0);
+}
 // The finish's lease for a state of `faces` faces and at most `vertices` vertices.
 inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {
   const uint64_t extra = vertices > faces / 2 ? vertices - faces / 2 : 0;
