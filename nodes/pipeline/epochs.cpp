@@ -12,6 +12,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <unordered_map>
 
 #include <oneapi/tbb/enumerable_thread_specific.h>
 #include <oneapi/tbb/parallel_for.h>
@@ -96,24 +97,9 @@ struct Box {
       if (b.max[k] < min[k] || b.min[k] > max[k]) return false;
     return true;
   }
-  // The L-infinity distance from the box (0 inside): the least margin whose grown box
-  // holds `p`.
-  double distance_to(const Point& p) const {
-    double d = 0;
-    for (int k = 0; k < 3; ++k) d = std::max({d, min[k] - p[k], p[k] - max[k]});
-    return d;
-  }
   static Box unbounded() {
     Box b;
     std::swap(b.min, b.max);
-    return b;
-  }
-  Box grown(double margin) const {
-    Box b = *this;
-    for (int k = 0; k < 3; ++k) {
-      b.min[k] -= margin;
-      b.max[k] += margin;
-    }
     return b;
   }
 };
@@ -127,13 +113,13 @@ struct ChunkMeta {
   Box box;
   // The boxes of the chunk's faces (their corners) in kParts runs of the chunk's order
   // (part_of): an export's chunk is in Morton order, so each run is a compact piece of
-  // surface where the whole chunk's box may span a fold or a Morton jump. The gather
-  // grows the owner's parts into the halo region and reads a chunk only when one of its
-  // parts meets it.
+  // surface where the whole chunk's box may span a fold or a Morton jump. A part's
+  // gather reads the runs whose boxes hold the vertices its BFS needs the fans of.
   static constexpr size_t kParts = 8;
   std::array<Box, kParts> parts;
   static size_t part_of(size_t face, size_t faces) { return face * kParts / faces; }
-  double edge_sum = 0;  // summed edge lengths of the chunk's faces (margin estimate)
+  // The id of the chunk's first face: tells its frame apart when read (read_runs).
+  uint64_t first_fid = 0;
 };
 
 struct Chunk {
@@ -197,10 +183,6 @@ class GidTable {
   std::vector<std::pair<uint64_t, uint32_t>> slots_;
 };
 
-double distance(const Point& a, const Point& b) {
-  return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
-}
-
 // Builds a chunk blob from faces and the (gid-sorted, deduplicated) vertex records they use.
 Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
   Bytes blob(blob_bytes(faces.size(), vertices.size()));
@@ -222,12 +204,12 @@ ChunkMeta meta_of(uint32_t owner, const std::vector<FaceRecord>& faces, const st
   auto position = [&](uint64_t gid) -> const Point& {
     return vertices[size_t(std::lower_bound(gids.begin(), gids.end(), gid) - gids.begin())].position;
   };
+  if (!faces.empty()) m.first_fid = faces[0].fid;
   for (size_t j = 0; j < faces.size(); ++j) {
     const auto& f = faces[j];
     const Point& p0 = position(f.v[0]);
     const Point& p1 = position(f.v[1]);
     const Point& p2 = position(f.v[2]);
-    m.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
     Box& part = m.parts[ChunkMeta::part_of(j, faces.size())];
     for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
   }
@@ -341,6 +323,7 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
         ChunkMeta& meta = made[i].meta;
         meta.owner = owner;
         meta.faces = nf;
+        meta.first_fid = out.face_gids[order[first]];
         for (size_t j = 0; j < n; ++j) {
           const uint32_t f = order[first + j];
           const auto& t = out.faces[f];
@@ -348,7 +331,6 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           const Point& p0 = out.positions[t[0]];
           const Point& p1 = out.positions[t[1]];
           const Point& p2 = out.positions[t[2]];
-          meta.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
           Box& part = meta.parts[ChunkMeta::part_of(j, n)];
           for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
         }
@@ -527,15 +509,6 @@ struct PatchPart {
   uint32_t owner = 0;
   bool whole = true;
   Box region;  // when not whole
-  // The halo box's margin in (rings + 2) mean edges; doubled when the BFS reached a
-  // vertex whose fan was not gathered. Per part, so one part's redo does not widen its
-  // siblings' gathers.
-  double margin_factor = 1.5;
-  // The farthest reach of a built halo (BuiltPatch::reach) in mean edges, and its ring
-  // count (0: none yet, or a margin redo since): the next gathers' margins start
-  // from it (Runner::part_margin).
-  int reach_rings = 0;
-  double reach_edges = 0;
 };
 
 // Face records the part does not own carry this owner, so "owner == p" means "owned by
@@ -547,162 +520,145 @@ struct Gathered {
   // (a gid's records may repeat: equal copies).
   std::vector<FaceRecord> faces;
   std::vector<VertexRecord> vertices;
-  uint64_t found_faces = 0;  // faces the gather kept (= faces.size() unless over_limit)
+  uint64_t found_faces = 0;  // faces the gather read (= faces.size() unless over_limit)
   uint64_t owned_faces = 0;  // of them, owned by the part
-  bool over_limit = false;   // more than the limit: nothing is held, found_faces is the need
+  bool over_limit = false;   // more than the limit: nothing is held, found_faces is what was found
 };
 
-// Where a part's halo can reach: each of its owner's chunk boxes (cut to the part's
-// region) grown by the margin. Much tighter than the owned box grown by the margin (an
-// owner's faces fill little of their box), so the gather reads and keeps fewer faces;
-// the BFS's margin check still catches a halo vertex outside it (margin redo). The
-// per-vertex test goes through a grid of cells marked where they meet a grown box (a
-// superset of the boxes' union).
-class HaloRegion {
- public:
-  static constexpr int kCells = 32;  // per axis
+// Which runs of a chunk (ChunkMeta::parts) a part's gather reads: bit k for run k.
+using RunMask = uint8_t;
+inline constexpr RunMask kAllRuns = 0xff;
+static_assert(ChunkMeta::kParts == 8);
+struct RunRead {
+  size_t chunk = 0;  // index into MeshState::chunks
+  RunMask runs = 0;
+};
 
-  HaloRegion() = default;
-  HaloRegion(std::vector<Box> grown_boxes) : boxes_(std::move(grown_boxes)) {
-    for (const Box& b : boxes_) bounds_.add(b);
-    if (bounds_.empty()) return;
+// Points bucketed in a grid over their bounds: "does this box hold one of them?"
+// without testing every point against every box.
+class PointGrid {
+ public:
+  explicit PointGrid(const std::vector<Point>& points) : points_(points) {
+    for (const Point& p : points_) bounds_.add(p);
+    cells_ = std::clamp(int(std::cbrt(double(points_.size()))), 1, 32);
     for (int k = 0; k < 3; ++k) {
       const double extent = bounds_.max[k] - bounds_.min[k];
-      scale_[k] = extent > 0 ? kCells / extent : 0.0;
+      scale_[k] = extent > 0 ? cells_ / extent : 0.0;
     }
-    cells_.assign(size_t(kCells) * kCells * kCells, 0);
-    for (const Box& b : boxes_) {
-      const auto lo = cell_of(b.min), hi = cell_of(b.max);
-      for (int x = lo[0]; x <= hi[0]; ++x)
-        for (int y = lo[1]; y <= hi[1]; ++y)
-          for (int z = lo[2]; z <= hi[2]; ++z) cells_[index(x, y, z)] = 1;
-    }
+    first_.assign(size_t(cells_) * cells_ * cells_ + 1, 0);
+    for (const Point& p : points_) ++first_[index(cell_of(p)) + 1];
+    for (size_t c = 1; c < first_.size(); ++c) first_[c] += first_[c - 1];
+    order_.resize(points_.size());
+    std::vector<uint32_t> at(first_.begin(), first_.end() - 1);
+    for (size_t i = 0; i < points_.size(); ++i) order_[at[index(cell_of(points_[i]))]++] = uint32_t(i);
   }
-
   const Box& bounds() const { return bounds_; }
-  bool meets(const Box& box) const {
-    if (!bounds_.meets(box)) return false;
-    for (const Box& b : boxes_)
-      if (b.meets(box)) return true;
+  bool any_inside(const Box& box) const {
+    if (box.empty() || !bounds_.meets(box)) return false;
+    const Box cut = box.intersected(bounds_);
+    const auto lo = cell_of(cut.min), hi = cell_of(cut.max);
+    for (int x = lo[0]; x <= hi[0]; ++x)
+      for (int y = lo[1]; y <= hi[1]; ++y)
+        for (int z = lo[2]; z <= hi[2]; ++z) {
+          const size_t c = index({x, y, z});
+          for (uint32_t i = first_[c]; i < first_[c + 1]; ++i)
+            if (box.contains(points_[order_[i]])) return true;
+        }
     return false;
-  }
-  bool contains(const Point& p) const {
-    if (!bounds_.contains(p)) return false;
-    const auto c = cell_of(p);
-    return cells_[index(c[0], c[1], c[2])];
   }
 
  private:
   std::array<int, 3> cell_of(const Point& p) const {
     std::array<int, 3> c;
-    for (int k = 0; k < 3; ++k)
-      c[k] = int(std::clamp((p[k] - bounds_.min[k]) * scale_[k], 0.0, double(kCells - 1)));
+    for (int k = 0; k < 3; ++k) c[k] = int(std::clamp((p[k] - bounds_.min[k]) * scale_[k], 0.0, double(cells_ - 1)));
     return c;
   }
-  static size_t index(int x, int y, int z) { return (size_t(x) * kCells + size_t(y)) * kCells + size_t(z); }
+  size_t index(const std::array<int, 3>& c) const { return (size_t(c[0]) * cells_ + size_t(c[1])) * cells_ + size_t(c[2]); }
 
-  std::vector<Box> boxes_;
+  const std::vector<Point>& points_;
   Box bounds_;
+  int cells_ = 1;
   std::array<double, 3> scale_{};
-  std::vector<uint8_t> cells_;
+  std::vector<uint32_t> first_, order_;
 };
 
-// The frames a gather reads (its owner's chunks that may hold owned faces, and every
-// chunk meeting the halo region), with upper bounds of what it holds (from the chunk
-// metas): the patch's lease is sized from most_faces before anything is read.
-struct GatherPlan {
-  std::vector<FrameRef> frames;
-  uint64_t most_faces = 0, most_blob_bytes = 0;
-  std::vector<Box> owned_boxes;  // the owner's chunk boxes cut to the part's region (not grown)
-  HaloRegion region;
-};
-
-// `part` null: every chunk (the in-core finish). `margin`: the halo's reach.
-GatherPlan plan_gather(const MeshState& state, const PatchPart* part, double margin) {
-  GatherPlan plan;
-  if (part) {
-    std::vector<Box> grown;
-    for (const auto& c : state.chunks) {
-      if (c.meta.owner != part->owner) continue;
-      for (const Box& b : c.meta.parts) {
-        const Box owned = part->whole ? b : b.intersected(part->region);
-        if (owned.empty()) continue;
-        plan.owned_boxes.push_back(owned);
-        grown.push_back(owned.grown(margin));
-      }
-    }
-    plan.region = HaloRegion(std::move(grown));
+// A part's first read: its owner's runs that may hold owned faces (all of them for a
+// whole owner; a run holds the centroids of its faces, so one that misses the region
+// owns nothing).
+std::vector<RunRead> owned_runs(const MeshState& state, const PatchPart& part) {
+  std::vector<RunRead> reads;
+  for (size_t i = 0; i < state.chunks.size(); ++i) {
+    const ChunkMeta& m = state.chunks[i].meta;
+    if (m.owner != part.owner) continue;
+    RunMask runs = 0;
+    for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+      if (!m.parts[k].empty() && (part.whole || m.parts[k].meets(part.region))) runs |= RunMask(1u << k);
+    if (runs) reads.push_back({i, runs});
   }
-  auto meets_region = [&](const ChunkMeta& m) {
-    if (!plan.region.meets(m.box)) return false;
-    for (const Box& b : m.parts)
-      if (!b.empty() && plan.region.meets(b)) return true;
-    return false;
-  };
-  for (const auto& c : state.chunks)
-    if (!part || (c.meta.owner == part->owner && part->whole) || meets_region(c.meta)) {
-      plan.frames.push_back(c.frame);
-      plan.most_faces += c.meta.faces;
-      plan.most_blob_bytes += c.frame.count;
-    }
-  return plan;
+  return reads;
 }
 
-// Loads the part's owned faces and every other face with a vertex in the plan's region; with
-// `part` null, everything (the in-core finish). At most `limit_faces` are held: a
-// gather that finds more keeps counting but holds nothing (over_limit), so a patch
-// never materializes beyond its lease.
-Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan, const PatchPart* part,
-                         uint64_t limit_faces = std::numeric_limits<uint64_t>::max()) {
-  // Reserved up front at upper bounds: growth by doubling would hold the old and the new
-  // arrays at once (a spike outside the patch lease); untouched reserved pages cost no RSS.
-  Gathered g;
-  g.faces.reserve(std::min(plan.most_faces, limit_faces));
-  g.vertices.reserve(plan.most_blob_bytes / sizeof(VertexRecord) + 1);
+// The runs not read yet (`read`: per chunk) whose boxes hold one of `points`: every
+// face of a vertex is in a run whose box holds the vertex (a run's box holds its
+// faces' corners), so these are all the runs that can complete the points' fans.
+std::vector<RunRead> runs_holding(const MeshState& state, const std::vector<Point>& points,
+                                  const std::vector<RunMask>& read) {
+  std::vector<RunRead> reads;
+  const PointGrid grid(points);
+  for (size_t i = 0; i < state.chunks.size(); ++i) {
+    const ChunkMeta& m = state.chunks[i].meta;
+    if (read[i] == kAllRuns || !grid.bounds().meets(m.box)) continue;
+    RunMask runs = 0;
+    for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+      if (!(read[i] >> k & 1u) && grid.any_inside(m.parts[k])) runs |= RunMask(1u << k);
+    if (runs) reads.push_back({i, runs});
+  }
+  return reads;
+}
+
+// Reads the given runs of the given chunks (one batch of frames through the job's I/O
+// thread) and appends their faces, and the vertex records those use, to `g`; the owner's
+// faces outside the part's region get kNotInPart. Once `g` would hold more than
+// `limit_faces` faces it holds nothing (over_limit) and only counts.
+void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const std::vector<RunRead>& reads,
+               const PatchPart& part, Gathered& g, uint64_t limit_faces) {
+  std::vector<FrameRef> frames;
+  // A chunk's frame is told apart by its first face id (faces are in one chunk each).
+  std::unordered_map<uint64_t, RunMask> runs_of;
+  for (const RunRead& r : reads) {
+    frames.push_back(state.chunks[r.chunk].frame);
+    runs_of.emplace(state.chunks[r.chunk].meta.first_fid, r.runs);
+  }
   engine::for_each_frame(
-      job, scratch, "epochs", "state frames", plan.frames, 1,
+      job, scratch, "epochs", "state frames", frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
-        if (!part) return;
-        const bool owners = header.tag == part->owner;
-        if (owners && part->whole) return;
         const BlobView v = view_blob(records.data(), records.size());
-        // Per vertex: inside the box? (Another owner's chunk wholly inside is kept as it
-        // is.) Corners are found in a compact gid array, and the kept faces' vertices
-        // are marked. The owner's faces are owned when their centroid is in the region.
-        std::vector<uint8_t> inside(v.vertices), used(v.vertices, 0);
-        bool all_inside = true, any_inside = false;
-        for (uint64_t i = 0; i < v.vertices; ++i) {
-          inside[i] = plan.region.contains(v.vertex[i].position);
-          all_inside = all_inside && inside[i];
-          any_inside = any_inside || inside[i];
-        }
-        if (all_inside && !owners) return;
-        if (!any_inside && !owners) {  // most chunks the region's bounds meet
-          Bytes empty = make_blob({}, {});
-          records.swap(empty);
-          return;
-        }
+        if (v.faces == 0) return;
+        const auto found = runs_of.find(v.face[0].fid);
+        if (found == runs_of.end()) throw Error(ErrorKind::internal, "state chunk not asked for");
+        const RunMask runs = found->second;
+        const bool owners = header.tag == part.owner;
+        if (runs == kAllRuns && (!owners || part.whole)) return;  // kept as it is
         const GidTable table(v.vertices, [&](size_t i) { return v.vertex[i].gid; });
         auto index_of = [&](uint64_t gid) {
           const uint32_t i = table.find(gid);
           if (i == GidTable::kMissing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
           return size_t(i);
         };
+        std::vector<uint8_t> used(v.vertices, 0);
         std::vector<FaceRecord> kept;
-        for (uint64_t i = 0; i < v.faces; ++i) {
-          const FaceRecord& f = v.face[i];
+        for (uint64_t j = 0; j < v.faces; ++j) {
+          if (!(runs >> ChunkMeta::part_of(j, v.faces) & 1u)) continue;
+          const FaceRecord& f = v.face[j];
           const size_t a = index_of(f.v[0]), b = index_of(f.v[1]), c = index_of(f.v[2]);
-          bool owned = false;
-          if (owners) {
+          kept.push_back(f);
+          if (owners && !part.whole) {
             Point centroid{};
             for (size_t corner : {a, b, c})
               for (int k = 0; k < 3; ++k) centroid[k] += v.vertex[corner].position[k];
             for (int k = 0; k < 3; ++k) centroid[k] /= 3;
-            owned = part->region.contains_half_open(centroid);
+            if (!part.region.contains_half_open(centroid)) kept.back().owner = kNotInPart;
           }
-          if (!owned && !(inside[a] || inside[b] || inside[c])) continue;
-          kept.push_back(f);
-          if (!owned) kept.back().owner = kNotInPart;
           used[a] = used[b] = used[c] = 1;
         }
         std::vector<VertexRecord> verts;
@@ -714,8 +670,7 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
       [&](const FrameHeader&, Bytes& records, Lease&) {
         const BlobView v = view_blob(records.data(), records.size());
         g.found_faces += v.faces;
-        if (part)
-          for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part->owner;
+        for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part.owner;
         if (g.found_faces > limit_faces) g.over_limit = true;
         if (g.over_limit) return;
         g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
@@ -725,13 +680,29 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
   if (g.over_limit) {
     release_memory(g.faces);
     release_memory(g.vertices);
-    return g;
   }
-  // A patch's arrays stay as read (build_patch dedups the vertices and orders only what
-  // it selects); the finish's are sorted here. Keys are unique (face ids; a gid's
-  // records are equal copies), so a parallel sort gives the same arrays. In the job's
-  // arena: --threads holds here too.
-  if (part) return g;
+}
+
+// Loads the whole state, sorted by fid / by gid and unique (the in-core finish).
+Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
+  // Reserved up front at upper bounds: growth by doubling would hold the old and the new
+  // arrays at once (a spike outside the lease); untouched reserved pages cost no RSS.
+  Gathered g;
+  std::vector<FrameRef> frames;
+  for (const auto& c : state.chunks) frames.push_back(c.frame);
+  g.faces.reserve(state.faces);
+  g.vertices.reserve(state.blob_bytes_total / sizeof(VertexRecord) + 1);
+  engine::for_each_frame(
+      job, scratch, "epochs", "state frames", frames, 1, nullptr,
+      [&](const FrameHeader&, Bytes& records, Lease&) {
+        const BlobView v = view_blob(records.data(), records.size());
+        g.found_faces += v.faces;
+        g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
+        g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
+      },
+      0);
+  // Keys are unique (face ids; a gid's records are equal copies), so a parallel sort
+  // gives the same arrays. In the job's arena: --threads holds here too.
   job.arena().execute([&] {
     tbb::parallel_sort(g.faces.begin(), g.faces.end(),
                        [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
@@ -758,21 +729,23 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
 
 struct BuiltPatch {
   PatchInput input;
-  bool margin_too_small = false;
-  // The halo's reach: the largest distance (Box::distance_to) from the owned boxes of a
-  // vertex the BFS expanded, i.e. the least gather margin that holds this patch.
-  double reach = 0;
+  // Positions of the vertices the BFS had to expand but whose fans were not whole in
+  // what was gathered (loaded faces < degree): then `input` is empty, and the gather
+  // reads the runs that hold them (runs_holding) and builds again.
+  std::vector<Point> blocked;
 };
 
-// Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. The
-// gathered arrays are in read order (which follows the I/O's timing) with repeated
-// vertex records: the first record of a gid with a known carried best stands for it
-// (copies differ only there, and known ones are equal: as the finish's dedup, so the
-// patch does not depend on the read order), and only the selection is put in gid / fid order (sorting
+// Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. A vertex
+// within rings - 1 rings is expanded, so its fan must be whole in what was gathered;
+// where one is not, the BFS goes on around it and reports every such vertex (blocked),
+// so one more read completes them all. The gathered arrays are in read order (which
+// follows the I/O's timing) with repeated vertex records: the first record of a gid
+// with a known carried best stands for it (copies differ only there, and known ones are
+// equal: as the finish's dedup, so the patch does not depend on the read order), and
+// only the selection is put in gid / fid order (sorting
 // 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
 // `carry_bests`: the records' carried best edges are valid for the pass (PatchInput::best_gids).
-BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests,
-                       const std::vector<Box>& owned_boxes) {
+BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests) {
   BuiltPatch out;
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const VertexRecord* vb = g.vertices.data();
@@ -819,29 +792,12 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
           frontier.push_back(v);
         }
     }
-  // Only a vertex farther than the reach so far needs its nearest box: the box that
-  // held or was nearest to the last one usually holds the next (BFS neighbours), and a
-  // scan stops at any box within the reach.
-  size_t near = 0;
-  auto reach_of = [&](const Point& x) {
-    if (owned_boxes.empty()) return 0.0;
-    double d = owned_boxes[near].distance_to(x);
-    for (size_t b = 0; b < owned_boxes.size() && d > out.reach; ++b) {
-      const double db = owned_boxes[b].distance_to(x);
-      if (db < d) {
-        d = db;
-        near = b;
-      }
-    }
-    return d;
-  };
   for (int r = 0; r < rings && !whole; ++r) {
     next.clear();
     for (uint32_t v : frontier) {
-      out.reach = std::max(out.reach, reach_of(vb[v].position));
       if (count[v + 1] - count[v] < vb[v].degree) {
-        out.margin_too_small = true;
-        return out;
+        out.blocked.push_back(vb[v].position);
+        continue;
       }
       for (uint32_t i = count[v]; i < count[v + 1]; ++i) {
         const uint32_t f = fan[i];
@@ -856,6 +812,7 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
     }
     frontier.swap(next);
   }
+  if (!out.blocked.empty()) return out;
   release_memory(frontier);
   release_memory(next);
   // The selection in gid order (vertices) and fid order (faces): (key, index) pairs.
@@ -1048,16 +1005,11 @@ struct Runner {
 
   void index_state(const MeshState& state) {
     owner_box.assign(patches, Box{});
-    std::vector<double> edge_sum(patches, 0.0);
     owner_faces.assign(patches, 0);
     for (const auto& c : state.chunks) {
       owner_box[c.meta.owner].add(c.meta.box);
-      edge_sum[c.meta.owner] += c.meta.edge_sum;
       owner_faces[c.meta.owner] += c.meta.faces;
     }
-    owner_edge.assign(patches, 0.0);
-    for (uint32_t p = 0; p < patches; ++p)
-      owner_edge[p] = owner_faces[p] ? edge_sum[p] / double(3 * owner_faces[p]) : 0.0;
     owner_parts.resize(patches);
     for (uint32_t p = 0; p < patches; ++p)
       if (owner_parts[p].empty()) owner_parts[p].push_back({p});
@@ -1068,32 +1020,43 @@ struct Runner {
   // this one is held: no hold-and-wait on the whole budget).
   uint64_t patch_cap() const { return job.capacity() / 4 * 3; }
 
-  // Where the part's owned faces are: the owner's box, cut to the region. (A vertex of
-  // an owned face may lie outside it, by less than an edge: the halo margin covers it,
-  // and build_patch's margin check catches a margin too small.)
+  // Where the part's owned faces are: the owner's box, cut to the region.
   Box owned_box(const PatchPart& part) const {
     return part.whole ? owner_box[part.owner] : owner_box[part.owner].intersected(part.region);
   }
 
-  // A part's gather margin: the margin factor's, or tighter once a built halo measured
-  // the part's reach (PatchPart::reach_edges at reach_rings): the same reach with
-  // kReachSlack to spare, plus margin_factor mean edges per ring beyond reach_rings.
-  // The mesh coarsens evenly between passes, so a reach in mean edges holds on the
-  // meshes seen; a margin too small costs a margin redo (the BFS's check, after which
-  // the factor's margin applies), never a different patch.
-  static constexpr double kReachSlack = 1.2;
-  double part_margin(const PatchPart& part, int rings) const {
-    const double edge = owner_edge[part.owner];
-    const double by_factor = (rings + 2) * edge * part.margin_factor;
-    if (part.reach_rings <= 0) return by_factor;
-    const double beyond = std::max(0, rings - part.reach_rings) * part.margin_factor;
-    return std::min(by_factor, (part.reach_edges * kReachSlack + beyond + 1) * edge);
+  // Gathers a part's patch and builds it: the runs that may hold owned faces, then,
+  // while the BFS is blocked at vertices whose fans were not read, the runs that hold
+  // those vertices (one batch of reads per stop; each run is read at most once). What
+  // is read changes, never the patch. Holds at most `limit_faces` gathered faces (over
+  // that: `g.over_limit`, nothing held, no patch built).
+  BuiltPatch gather_and_build(const MeshState& state, const PatchPart& part, int rings, uint64_t limit_faces,
+                              Gathered& g, PhaseClock& clock) {
+    // Reserved up front at upper bounds (a face brings at most 3 vertex records):
+    // growth by doubling would hold the old and the new arrays at once (a spike outside
+    // the patch lease); untouched reserved pages cost no RSS.
+    g.faces.reserve(limit_faces);
+    g.vertices.reserve(3 * limit_faces);
+    std::vector<RunMask> read(state.chunks.size(), 0);
+    std::vector<RunRead> reads = owned_runs(state, part);
+    for (;;) {
+      for (const RunRead& r : reads) read[r.chunk] |= r.runs;
+      read_runs(job, scratch, state, reads, part, g, limit_faces);
+      ++stats.gather_reads;
+      clock.charge(kGather);
+      if (g.over_limit || g.owned_faces == 0) return {};
+      BuiltPatch built;
+      job.arena().execute([&] { built = build_patch(g, part.owner, rings, false, carry_bests); });
+      clock.charge(kBuild);
+      if (built.blocked.empty()) return built;
+      reads = runs_holding(state, built.blocked, read);
+      if (reads.empty()) throw Error(ErrorKind::internal, "a vertex's faces are not in the mesh state");
+    }
   }
 
-  // Runs one part: gather under a lease of at most patch_cap(), build with the halo
-  // (a margin redo doubles the part's margin factor), run the plan, summarize, export.
-  // False, with nothing run or kept, when the gather found more faces than the lease
-  // holds.
+  // Runs one part: gather and build under a lease of at most patch_cap(), run the
+  // plan, summarize, export. False, with nothing run or kept, when the gather found
+  // more faces than the lease holds.
   bool run_part(const MeshState& state, MeshState* next, PatchPart& part, const PatchPlan& plan,
                 const DecimateParams& params, std::vector<std::vector<Candidate>>* candidates, uint64_t needed,
                 RoundSummary& total) {
@@ -1102,17 +1065,14 @@ struct Runner {
     for (;;) {
       job.check();
       const int rings = this->rings();
-      const double margin = part_margin(part, rings);
-      if (margin < (rings + 2) * owner_edge[p] * part.margin_factor) ++stats.reach_gathers;
-      // The gather's upper bound from the chunk metas: when it fits, the gather cannot
-      // go over; the lease is trimmed to what was found.
-      const GatherPlan gather = plan_gather(state, &part, margin);
-      const uint64_t want = std::min(gather.most_faces * kPatchBytesPerFace, patch_cap());
+      // What the gather will hold is not known before it ran: the lease is what a patch
+      // may hold (or the whole state, if less), trimmed to what was gathered.
+      const uint64_t want = std::min(std::max<uint64_t>(1, state.faces) * kPatchBytesPerFace, patch_cap());
       Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
       job.check();
-      Gathered g = load_candidates(job, scratch, gather, &part, lease.bytes() / kPatchBytesPerFace);
+      Gathered g;
+      BuiltPatch built = gather_and_build(state, part, rings, lease.bytes() / kPatchBytesPerFace, g, clock);
       stats.gathered_faces_total += g.found_faces;
-      clock.charge(kGather);
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
         if (g.owned_faces <= kSmallestPart) refuse_part(g);
@@ -1120,23 +1080,7 @@ struct Runner {
       }
       lease.shrink_to(g.faces.size() * kPatchBytesPerFace);
       const uint64_t owned_faces = g.owned_faces;
-      BuiltPatch built;
-      job.arena().execute([&] { built = build_patch(g, p, rings, false, carry_bests, gather.owned_boxes); });
       g = {};
-      clock.charge(kBuild);
-      if (built.margin_too_small) {
-        if (part.reach_rings > 0)
-          part.reach_rings = 0;  // back to the factor's margin
-        else
-          part.margin_factor *= 2;
-        ++stats.margin_redos;
-        continue;
-      }
-      if (rings >= part.reach_rings && owner_edge[p] > 0) {
-        const double edges = built.reach / owner_edge[p];
-        part.reach_edges = rings == part.reach_rings ? std::max(part.reach_edges, edges) : edges;
-        part.reach_rings = rings;
-      }
       stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
       stats.patch_faces_total += built.input.faces.size();
       stats.owned_faces_total += owned_faces;
@@ -1184,13 +1128,14 @@ struct Runner {
   // would not make the patch fit.
   static constexpr uint64_t kSmallestPart = 2048;
 
+  // The gather stops once it holds too much, so the need is a lower bound.
   [[noreturn]] void refuse_part(const Gathered& g) const {
     const uint64_t need = g.found_faces * kPatchBytesPerFace;
     // patch_cap() is 3/4 of the job's capacity, which is the budget less the baseline and the trace.
     const uint64_t minimum = need / 3 * 4 + job.governor().baseline() + job.held_for_run();
     throw Error(ErrorKind::resource,
                 "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings()) +
-                    "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
+                    "-ring halo (over " + std::to_string(g.found_faces) + " faces) needs over " + config::format_size(need) +
                     " of memory but --mem-budget " + config::format_size(job.governor().budget()) +
                     " lets a patch hold " + config::format_size(patch_cap()) + "; this needs a budget of at least " +
                     config::format_size(minimum));
@@ -1203,8 +1148,7 @@ struct Runner {
     for (int k = 1; k < 3; ++k)
       if (owned.max[k] - owned.min[k] > owned.max[axis] - owned.min[axis]) axis = k;
     const double middle = 0.5 * (owned.min[axis] + owned.max[axis]);
-    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region, part.margin_factor,
-                  part.reach_rings, part.reach_edges};
+    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region};
     PatchPart high = low;
     low.region.max[axis] = middle;
     high.region.min[axis] = middle;
@@ -1395,7 +1339,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                                        [&] { return job.stopped(); });
   PatchInput whole;
   {
-    Gathered g = load_candidates(job, scratch, plan_gather(*state, nullptr, 0.0), nullptr);
+    Gathered g = load_state(job, scratch, *state);
     job.arena().execute([&] { whole = build_whole_patch(std::move(g), runner.carry_bests); });
   }
   replace_state(new_state());
