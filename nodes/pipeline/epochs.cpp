@@ -97,14 +97,6 @@ struct Box {
       if (b.max[k] < min[k] || b.min[k] > max[k]) return false;
     return true;
   }
-  Box grown(double margin) const {
-    Box b = *this;
-    for (int k = 0; k < 3; ++k) {
-      b.min[k] -= margin;
-      b.max[k] += margin;
-    }
-    return b;
-  }
   static Box unbounded() {
     Box b;
     std::swap(b.min, b.max);
@@ -190,10 +182,6 @@ class GidTable {
   size_t mask_ = 0;
   std::vector<std::pair<uint64_t, uint32_t>> slots_;
 };
-
-double distance(const Point& a, const Point& b) {
-  return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
-}
 
 // Builds a chunk blob from faces and the (gid-sorted, deduplicated) vertex records they use.
 Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
@@ -612,18 +600,17 @@ std::vector<RunRead> owned_runs(const MeshState& state, const PatchPart& part) {
 
 // The runs not read yet (`read`: per chunk) whose boxes hold one of `points`: every
 // face of a vertex is in a run whose box holds the vertex (a run's box holds its
-// faces' corners), so these are all the runs that can complete the points' fans; with
-// `ahead` > 0 also those within that L-infinity distance of a point (read ahead).
+// faces' corners), so these are all the runs that can complete the points' fans.
 std::vector<RunRead> runs_holding(const MeshState& state, const std::vector<Point>& points,
-                                  const std::vector<RunMask>& read, double ahead) {
+                                  const std::vector<RunMask>& read) {
   std::vector<RunRead> reads;
   const PointGrid grid(points);
   for (size_t i = 0; i < state.chunks.size(); ++i) {
     const ChunkMeta& m = state.chunks[i].meta;
-    if (read[i] == kAllRuns || !grid.bounds().meets(m.box.grown(ahead))) continue;
+    if (read[i] == kAllRuns || !grid.bounds().meets(m.box)) continue;
     RunMask runs = 0;
     for (size_t k = 0; k < ChunkMeta::kParts; ++k)
-      if (!(read[i] >> k & 1u) && !m.parts[k].empty() && grid.any_inside(m.parts[k].grown(ahead))) runs |= RunMask(1u << k);
+      if (!(read[i] >> k & 1u) && grid.any_inside(m.parts[k])) runs |= RunMask(1u << k);
     if (runs) reads.push_back({i, runs});
   }
   return reads;
@@ -746,10 +733,6 @@ struct BuiltPatch {
   // what was gathered (loaded faces < degree): then `input` is empty, and the gather
   // reads the runs that hold them (runs_holding) and builds again.
   std::vector<Point> blocked;
-  // The mean length of the loaded edges at the blocked vertices, and the fewest rings
-  // the BFS still had to go past a blocked vertex (runs_holding's reach ahead).
-  double blocked_edge = 0;
-  int blocked_rings_left = 0;
 };
 
 // Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. A vertex
@@ -809,20 +792,11 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
           frontier.push_back(v);
         }
     }
-  double edge_sum = 0;
-  uint64_t edges = 0;
   for (int r = 0; r < rings && !whole; ++r) {
     next.clear();
     for (uint32_t v : frontier) {
       if (count[v + 1] - count[v] < vb[v].degree) {
         out.blocked.push_back(vb[v].position);
-        for (uint32_t i = count[v]; i < count[v + 1]; ++i)
-          for (uint32_t u : local[fan[i]]) {
-            if (u == v) continue;
-            edge_sum += distance(vb[v].position, vb[u].position);
-            ++edges;
-          }
-        if (out.blocked.size() == 1) out.blocked_rings_left = rings - r;
         continue;
       }
       for (uint32_t i = count[v]; i < count[v + 1]; ++i) {
@@ -838,10 +812,7 @@ BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, boo
     }
     frontier.swap(next);
   }
-  if (!out.blocked.empty()) {
-    out.blocked_edge = edges ? edge_sum / double(edges) : 0.0;
-    return out;
-  }
+  if (!out.blocked.empty()) return out;
   release_memory(frontier);
   release_memory(next);
   // The selection in gid order (vertices) and fid order (faces): (key, index) pairs.
@@ -1054,15 +1025,6 @@ struct Runner {
     return part.whole ? owner_box[part.owner] : owner_box[part.owner].intersected(part.region);
   }
 
-  // A blocked vertex's read also takes the unread runs within this many of its mean
-  // edges (at most the rings the BFS still goes past it): fewer batches of reads and
-  // rebuilds for a little more held. Measured (200k blob at 96M, --in-core-faces 1;
-  // ahead 0 / 4 / 8 / all rings): gather_reads 742 / 557 / 450 / 308, gathered faces
-  // 4.73M / 4.89M / 5.04M / 5.48M; at 64M all rings splits 4 parts (the fold problem
-  // of box gathers again), 8 none; the demo (1M, 96M) at 0 / 4 / 8: 33.9 / 32.2 / 34.1
-  // CPU-s, 2.74 / 2.51 / 2.31 GB read.
-  static constexpr int kReadAheadRings = 4;
-
   // Gathers a part's patch and builds it: the runs that may hold owned faces, then,
   // while the BFS is blocked at vertices whose fans were not read, the runs that hold
   // those vertices (one batch of reads per stop; each run is read at most once). What
@@ -1087,8 +1049,7 @@ struct Runner {
       job.arena().execute([&] { built = build_patch(g, part.owner, rings, false, carry_bests); });
       clock.charge(kBuild);
       if (built.blocked.empty()) return built;
-      reads = runs_holding(state, built.blocked, read,
-                           std::min(kReadAheadRings, built.blocked_rings_left) * built.blocked_edge);
+      reads = runs_holding(state, built.blocked, read);
       if (reads.empty()) throw Error(ErrorKind::internal, "a vertex's faces are not in the mesh state");
     }
   }

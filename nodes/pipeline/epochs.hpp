@@ -24,28 +24,26 @@
 //   round refreshes only the other vertices (decimator.hpp, PatchInput::best_gids).
 //   Nothing collapses between a summary and the next pass; when the guards relax in
 //   between, nothing is carried (the bests were found under the old params).
-// - A patch's halo: faces within `rings` rings of its owned faces, found by a BFS
-//   that drives the gather. Each chunk's meta keeps the boxes of 8 runs of its faces
-//   (an export's chunk is in Morton order, so a run is a compact piece of surface); a
-//   run's box holds its faces' corners, so every face of a vertex lies in a run whose
-//   box holds the vertex. The gather reads the runs that may hold owned faces, then
-//   runs the BFS over what it read; where the BFS must expand a vertex whose fan is
-//   not whole there (loaded faces < degree), it goes on around it, and one batch of
-//   reads brings every run not yet read whose box holds such a vertex (or lies within
-//   4 of its mean edges: read ahead, fewer batches); then the BFS runs again (counted:
-//   gather_reads), until no vertex is blocked (at most rings + 1 times: each batch
-//   completes the fans that stopped the BFS). A run is read at most once per gather,
-//   so no face is held twice. What is read changes, never the patch.
+// - A patch's halo: faces within `rings` rings of its owned faces, found by a BFS that
+//   drives the gather. Each chunk's meta keeps the boxes of 8 runs of its faces (an
+//   export's chunk is in Morton order, so a run is a compact piece of surface); a run's
+//   box holds its faces' corners, so every face of a vertex lies in a run whose box
+//   holds the vertex. The gather reads the runs that may hold owned faces, then runs
+//   the BFS over what it read; where the BFS must expand a vertex whose fan is not
+//   whole there (loaded faces < degree), it goes on around it, and one batch of reads
+//   brings every run not yet read whose box holds such a vertex; then the BFS runs
+//   again (counted: gather_reads), until no vertex is blocked (at most rings + 1
+//   times: each batch completes the fans that stopped the BFS). A run is read at most
+//   once per gather, so no face is held twice. What is read changes, never the patch.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
 // - Memory: a patch runs under one governor lease of kPatchBytesPerFace per gathered
-//   face, at most 3/4 of the capacity (taken before the gather, trimmed after it); the
-//   gather stops holding faces, and reading, once it finds more than the lease covers.
-//   Such a patch is split: its owner runs as parts (the faces whose centroid lies in
-//   each half of a region, halved again as needed), a finer partition with the same
-//   output; a part of at most 2048 owned faces that still does not fit is refused
-//   with the least budget it would need (Error resource). The counts are in the
-//   report (patch_splits).
+//   face, at most 3/4 of the capacity (taken whole before the gather, trimmed after it);
+//   the gather stops holding faces, and reading, once it finds more than the lease covers. Such a patch is split: its owner runs as parts (the
+//   faces whose centroid lies in each half of a region, halved again as needed), a
+//   finer partition with the same output; a part of at most 2048 owned faces that
+//   still does not fit is refused with the minimum budget (Error resource). The
+//   counts are in the report (patch_splits).
 // - All scratch and output I/O goes through the job's I/O thread.
 #include <array>
 #include <cstdint>
