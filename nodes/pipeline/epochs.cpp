@@ -512,7 +512,7 @@ struct PatchPart {
 };
 
 // Face records the part does not own carry this owner, so "owner == p" means "owned by
-// this part" in build_patch.
+// this part" in PatchBfs.
 inline constexpr uint32_t kNotInPart = std::numeric_limits<uint32_t>::max();
 
 struct Gathered {
@@ -727,170 +727,276 @@ Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
   return g;
 }
 
-struct BuiltPatch {
-  PatchInput input;
-  // Positions of the vertices the BFS had to expand but whose fans were not whole in
-  // what was gathered (loaded faces < degree): then `input` is empty, and the gather
-  // reads the runs that hold them (runs_holding) and builds again.
-  std::vector<Point> blocked;
-};
-
-// Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. A vertex
-// within rings - 1 rings is expanded, so its fan must be whole in what was gathered;
-// where one is not, the BFS goes on around it and reports every such vertex (blocked),
-// so one more read completes them all. The gathered arrays are in read order (which
-// follows the I/O's timing) with repeated vertex records: the first record of a gid
-// with a known carried best stands for it (copies differ only there, and known ones are
-// equal: as the finish's dedup, so the patch does not depend on the read order), and
-// only the selection is put in gid / fid order (sorting
-// 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
-// `carry_bests`: the records' carried best edges are valid for the pass (PatchInput::best_gids).
-BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests) {
-  BuiltPatch out;
-  const size_t nv = g.vertices.size(), nf = g.faces.size();
-  const VertexRecord* vb = g.vertices.data();
-  // Corner → local vertex through a gid table (a repeated record maps to the first with
-  // a known best), in parallel.
-  std::optional<GidTable> table(std::in_place, nv, [vb](size_t v) { return vb[v].gid; },
-                                [vb](size_t v, uint32_t kept) {
-                                  return vb[kept].best_gid == kBestUnknown && vb[v].best_gid != kBestUnknown;
-                                });
-  std::vector<std::array<uint32_t, 3>> local(nf);
-  std::atomic<bool> missing = false;
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t f = range.begin(); f < range.end(); ++f)
-      for (int k = 0; k < 3; ++k) {
-        const uint32_t v = table->find(g.faces[f].v[k]);
-        if (v == GidTable::kMissing) {
-          missing = true;
-          continue;
-        }
-        local[f][k] = v;
-      }
-  });
-  if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
-  table.reset();
-  std::vector<uint32_t> count(nv + 1, 0);
-  for (size_t f = 0; f < nf; ++f)
-    for (uint32_t v : local[f]) ++count[v + 1];
-  for (size_t v = 0; v < nv; ++v) count[v + 1] += count[v];
-  std::vector<uint32_t> fan(count[nv]);
-  {
-    std::vector<uint32_t> at(count.begin(), count.end() - 1);
-    for (size_t f = 0; f < nf; ++f)
-      for (uint32_t v : local[f]) fan[at[v]++] = uint32_t(f);
+// Appends a vertex record's fields to a PatchInput's per-vertex arrays (quadrics and
+// locks when the state has them, carried bests when they are valid).
+void append_vertex(PatchInput& in, const VertexRecord& r, bool quadrics, bool bests) {
+  in.vertex_gids.push_back(r.gid);
+  in.positions.push_back(r.position);
+  if (quadrics) {
+    in.quadrics.push_back(r.quadric);
+    in.locked.push_back(r.locked);
   }
-  // The BFS selects sets (the order of fans does not matter).
-  std::vector<uint8_t> fsel(nf, 0), vsel(nv, 0);
-  std::vector<uint32_t> frontier, next;
-  for (size_t f = 0; f < nf; ++f)
-    if (whole || g.faces[f].owner == p) {
-      fsel[f] = 1;
-      for (uint32_t v : local[f])
-        if (!vsel[v]) {
-          vsel[v] = 1;
-          frontier.push_back(v);
-        }
-    }
-  for (int r = 0; r < rings && !whole; ++r) {
-    next.clear();
-    for (uint32_t v : frontier) {
-      if (count[v + 1] - count[v] < vb[v].degree) {
-        out.blocked.push_back(vb[v].position);
-        continue;
-      }
-      for (uint32_t i = count[v]; i < count[v + 1]; ++i) {
-        const uint32_t f = fan[i];
-        if (fsel[f]) continue;
-        fsel[f] = 1;
-        for (uint32_t u : local[f])
-          if (!vsel[u]) {
-            vsel[u] = 1;
-            next.push_back(u);
-          }
-      }
-    }
-    frontier.swap(next);
+  if (bests) {
+    in.best_gids.push_back(r.best_gid);
+    in.best_costs.push_back(r.best_cost);
   }
-  if (!out.blocked.empty()) return out;
-  release_memory(frontier);
-  release_memory(next);
-  // The selection in gid order (vertices) and fid order (faces): (key, index) pairs.
-  std::vector<std::pair<uint64_t, uint32_t>> vorder, forder;
-  vorder.reserve(size_t(std::count(vsel.begin(), vsel.end(), uint8_t(1))));
-  for (size_t v = 0; v < nv; ++v)
-    if (vsel[v]) vorder.push_back({vb[v].gid, uint32_t(v)});
-  tbb::parallel_sort(vorder.begin(), vorder.end());
-  const size_t kept_v = vorder.size();
-  PatchInput& in = out.input;
-  std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
-  const bool given_quadrics = nv > 0 && vb[0].has_quadric;
-  const bool carried = given_quadrics && carry_bests;
-  // Exact sizes (no growth spikes).
-  in.vertex_gids.reserve(kept_v);
-  in.positions.reserve(kept_v);
-  if (given_quadrics) {
-    in.quadrics.reserve(kept_v);
-    in.locked.reserve(kept_v);
-  }
-  if (!whole) {
-    in.incomplete.reserve(kept_v);
-    in.owned_vertex.reserve(kept_v);
-  }
-  if (carried) {
-    in.best_gids.reserve(kept_v);
-    in.best_costs.reserve(kept_v);
-  }
-  for (const auto& [gid, v] : vorder) {
-    new_index[v] = uint32_t(in.vertex_gids.size());
-    in.vertex_gids.push_back(gid);
-    in.positions.push_back(vb[v].position);
-    if (given_quadrics) {
-      in.quadrics.push_back(vb[v].quadric);
-      in.locked.push_back(vb[v].locked);
-    }
-    if (carried) {
-      in.best_gids.push_back(vb[v].best_gid);
-      in.best_costs.push_back(vb[v].best_cost);
-    }
-    if (!whole) {
-      uint32_t inside = 0;
-      uint64_t smallest = std::numeric_limits<uint64_t>::max();
-      uint32_t owner = 0;
-      for (uint32_t i = count[v]; i < count[v + 1]; ++i)
-        if (fsel[fan[i]]) {
-          ++inside;
-          if (g.faces[fan[i]].fid < smallest) {
-            smallest = g.faces[fan[i]].fid;
-            owner = g.faces[fan[i]].owner;
-          }
-        }
-      const bool incomplete = inside < vb[v].degree;
-      in.incomplete.push_back(incomplete);
-      in.owned_vertex.push_back(!incomplete && owner == p);
-    }
-  }
-  release_memory(vorder);
-  release_memory(fan);
-  release_memory(count);
-  forder.reserve(size_t(std::count(fsel.begin(), fsel.end(), uint8_t(1))));
-  for (size_t f = 0; f < nf; ++f)
-    if (fsel[f]) forder.push_back({g.faces[f].fid, uint32_t(f)});
-  tbb::parallel_sort(forder.begin(), forder.end());
-  const size_t kept_f = forder.size();
-  in.faces.reserve(kept_f);
-  in.face_gids.reserve(kept_f);
-  if (!whole) in.owned_face.reserve(kept_f);
-  for (const auto& [fid, f] : forder) {
-    in.faces.push_back({new_index[local[f][0]], new_index[local[f][1]], new_index[local[f][2]]});
-    in.face_gids.push_back(fid);
-    if (!whole) in.owned_face.push_back(g.faces[f].owner == p);
-  }
-  return out;
 }
 
+// gid → dense id (0, 1, 2, ... in first-insert order), by open addressing that grows
+// as ids are added: the gather's index gains vertex records batch by batch.
+class GrowingGidMap {
+ public:
+  static constexpr uint32_t kMissing = std::numeric_limits<uint32_t>::max();
+  uint32_t size() const { return size_; }
+  // The gid's id, added as the next one if new (`added`).
+  uint32_t insert(uint64_t gid, bool& added) {
+    if (2 * (size_t(size_) + 1) > slots_.size()) grow();
+    size_t at = slot_of(gid);
+    while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
+    added = slots_[at].second == kMissing;
+    if (added) slots_[at] = {gid, size_++};
+    return slots_[at].second;
+  }
+  uint32_t find(uint64_t gid) const {
+    if (slots_.empty()) return kMissing;
+    size_t at = slot_of(gid);
+    while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
+    return slots_[at].second;
+  }
+  void release() {
+    release_memory(slots_);
+    size_ = 0;
+  }
+
+ private:
+  size_t slot_of(uint64_t gid) const { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift_); }
+  void grow() {
+    std::vector<std::pair<uint64_t, uint32_t>> old;
+    old.swap(slots_);
+    const size_t slots = std::max<size_t>(1024, 2 * old.size());
+    shift_ = 64 - std::countr_zero(slots);
+    mask_ = slots - 1;
+    slots_.assign(slots, {0, kMissing});
+    for (const auto& [gid, id] : old)
+      if (id != kMissing) {
+        size_t at = slot_of(gid);
+        while (slots_[at].second != kMissing) at = (at + 1) & mask_;
+        slots_[at] = {gid, id};
+      }
+  }
+  int shift_ = 0;
+  size_t mask_ = 0;
+  uint32_t size_ = 0;
+  std::vector<std::pair<uint64_t, uint32_t>> slots_;
+};
+
+// A part's halo BFS over what its gather read so far, kept across the gather's read
+// batches: each batch's faces and vertex records are indexed once (add), and the BFS
+// goes on from where it stopped (run) instead of starting over: the vertices it had
+// to expand but whose fans were not whole (loaded faces < degree; blocked) start it
+// again, at their rings. A vertex's ring can drop once such a vertex is expanded; it
+// is expanded again then, so the rings end as a fresh BFS's over the same faces, and
+// a pass blocks at the vertices a fresh BFS would (the reads, and the patch, are the
+// same). Owned faces are all in the first batch (owned_runs).
+//
+// A gid's records may repeat (equal copies but for the carried best, known ones
+// equal): the first with a known carried best stands for it, else the first read (as
+// the finish's dedup, so the patch does not depend on the read order).
+class PatchBfs {
+ public:
+  PatchBfs(uint32_t owner, int rings, uint64_t limit_faces) : owner_(owner), rings_(rings), pending_(rings + 1) {
+    if (rings >= kUnreached) throw Error(ErrorKind::internal, "halo rings beyond the BFS's ring type");
+    // Reserved at upper bounds (a face brings at most 3 vertex records): no growth spikes.
+    local_.reserve(limit_faces);
+    face_ring_.reserve(limit_faces);
+    next_.reserve(3 * limit_faces);
+    record_.reserve(3 * limit_faces);
+    head_.reserve(3 * limit_faces);
+    loaded_.reserve(3 * limit_faces);
+    ring_.reserve(3 * limit_faces);
+  }
+
+  // Indexes the records `g` gained since the last call (read order).
+  void add(const Gathered& g) {
+    const VertexRecord* vb = g.vertices.data();
+    for (size_t i = indexed_vertices_; i < g.vertices.size(); ++i) {
+      bool added = false;
+      const uint32_t v = ids_.insert(vb[i].gid, added);
+      if (added) {
+        record_.push_back(uint32_t(i));
+        head_.push_back(kNone);
+        loaded_.push_back(0);
+        ring_.push_back(kUnreached);
+      } else if (vb[record_[v]].best_gid == kBestUnknown && vb[i].best_gid != kBestUnknown) {
+        record_[v] = uint32_t(i);
+      }
+    }
+    indexed_vertices_ = g.vertices.size();
+    const size_t first = local_.size(), nf = g.faces.size();
+    local_.resize(nf);
+    std::atomic<bool> missing = false;
+    tbb::parallel_for(tbb::blocked_range<size_t>(first, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t f = range.begin(); f < range.end(); ++f)
+        for (int k = 0; k < 3; ++k) {
+          const uint32_t v = ids_.find(g.faces[f].v[k]);
+          if (v == GrowingGidMap::kMissing) {
+            missing = true;
+            continue;
+          }
+          local_[f][k] = v;
+        }
+    });
+    if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+    next_.resize(3 * nf);
+    face_ring_.resize(nf, kUnreached);
+    for (size_t f = first; f < nf; ++f)
+      for (int k = 0; k < 3; ++k) {
+        const uint32_t v = local_[f][k];
+        next_[3 * f + k] = head_[v];
+        head_[v] = uint32_t(3 * f + k);
+        ++loaded_[v];
+      }
+    // The owned faces seed the BFS (ring 0: their corners).
+    for (size_t f = first; f < nf; ++f)
+      if (g.faces[f].owner == owner_) {
+        face_ring_[f] = 0;
+        for (uint32_t v : local_[f]) reach(v, 0);
+      }
+    // The vertices that blocked the last run: their fans may be whole now.
+    for (uint32_t v : blocked_) pending_[ring_[v]].push_back(v);
+    blocked_.clear();
+  }
+
+  // Goes on with the BFS over what was added; the positions of the vertices where it
+  // is blocked (none: the halo is complete, build() may follow).
+  std::vector<Point> run(const Gathered& g) {
+    const VertexRecord* vb = g.vertices.data();
+    for (int r = 0; r < rings_; ++r) {
+      std::vector<uint32_t> level;
+      level.swap(pending_[r]);
+      for (uint32_t v : level) {
+        if (ring_[v] != r) continue;  // reached at a smaller ring since
+        if (loaded_[v] < vb[record_[v]].degree) {
+          blocked_.push_back(v);
+          continue;
+        }
+        // Faces reached from ring r: their corners are within r + 1. A face reached
+        // from a smaller ring already gave its corners that.
+        for (uint32_t e = head_[v]; e != kNone; e = next_[e]) {
+          const uint32_t f = e / 3;
+          if (face_ring_[f] <= r + 1) continue;
+          face_ring_[f] = uint8_t(r + 1);
+          for (uint32_t u : local_[f]) reach(u, r + 1);
+        }
+      }
+    }
+    // A vertex reached at a smaller ring while blocked is listed twice.
+    std::sort(blocked_.begin(), blocked_.end());
+    blocked_.erase(std::unique(blocked_.begin(), blocked_.end()), blocked_.end());
+    std::vector<Point> positions;
+    positions.reserve(blocked_.size());
+    for (uint32_t v : blocked_) positions.push_back(vb[record_[v]].position);
+    return positions;
+  }
+
+  // The patch: the faces the BFS reached (owned + `rings` rings) and their corners, in
+  // fid / gid order; flags as decimator.hpp asks. Consumes the index.
+  PatchInput build(const Gathered& g, bool carry_bests) {
+    const VertexRecord* vb = g.vertices.data();
+    ids_.release();
+    release_memory(next_);
+    release_memory(head_);
+    // The selection in fid order (faces) and gid order (vertices): (key, index) pairs.
+    std::vector<std::pair<uint64_t, uint32_t>> forder;
+    const size_t nf = local_.size(), nv = record_.size();
+    forder.reserve(size_t(nf - std::count(face_ring_.begin(), face_ring_.end(), kUnreached)));
+    for (size_t f = 0; f < nf; ++f)
+      if (face_ring_[f] != kUnreached) forder.push_back({g.faces[f].fid, uint32_t(f)});
+    release_memory(face_ring_);
+    tbb::parallel_sort(forder.begin(), forder.end());
+    // Per vertex: its faces in the patch, and whether the one of smallest fid is owned.
+    std::vector<uint32_t> inside(nv, 0);
+    std::vector<uint8_t> first_owned(nv, 0);
+    for (const auto& [fid, f] : forder)
+      for (uint32_t v : local_[f])
+        if (inside[v]++ == 0) first_owned[v] = g.faces[f].owner == owner_;
+    std::vector<std::pair<uint64_t, uint32_t>> vorder;
+    vorder.reserve(size_t(nv - std::count(inside.begin(), inside.end(), 0u)));
+    for (size_t v = 0; v < nv; ++v)
+      if (inside[v]) vorder.push_back({vb[record_[v]].gid, uint32_t(v)});
+    tbb::parallel_sort(vorder.begin(), vorder.end());
+    const size_t kept_v = vorder.size();
+    PatchInput in;
+    std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
+    const bool given_quadrics = nv > 0 && vb[0].has_quadric;
+    const bool carried = given_quadrics && carry_bests;
+    // Exact sizes (no growth spikes).
+    in.vertex_gids.reserve(kept_v);
+    in.positions.reserve(kept_v);
+    if (given_quadrics) {
+      in.quadrics.reserve(kept_v);
+      in.locked.reserve(kept_v);
+    }
+    in.incomplete.reserve(kept_v);
+    in.owned_vertex.reserve(kept_v);
+    if (carried) {
+      in.best_gids.reserve(kept_v);
+      in.best_costs.reserve(kept_v);
+    }
+    for (const auto& [gid, v] : vorder) {
+      const VertexRecord& r = vb[record_[v]];
+      new_index[v] = uint32_t(in.vertex_gids.size());
+      append_vertex(in, r, given_quadrics, carried);
+      const bool incomplete = inside[v] < r.degree;
+      in.incomplete.push_back(incomplete);
+      in.owned_vertex.push_back(!incomplete && first_owned[v]);
+    }
+    release_memory(vorder);
+    release_memory(inside);
+    release_memory(first_owned);
+    const size_t kept_f = forder.size();
+    in.faces.reserve(kept_f);
+    in.face_gids.reserve(kept_f);
+    in.owned_face.reserve(kept_f);
+    for (const auto& [fid, f] : forder) {
+      in.faces.push_back({new_index[local_[f][0]], new_index[local_[f][1]], new_index[local_[f][2]]});
+      in.face_gids.push_back(fid);
+      in.owned_face.push_back(g.faces[f].owner == owner_);
+    }
+    release_memory(local_);
+    release_memory(record_);
+    release_memory(loaded_);
+    release_memory(ring_);
+    return in;
+  }
+
+ private:
+  static constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+  static constexpr uint8_t kUnreached = std::numeric_limits<uint8_t>::max();
+  // Vertex v is within `ring` rings: it is expanded there if that is inside the halo.
+  void reach(uint32_t v, int ring) {
+    if (ring_[v] <= ring) return;
+    ring_[v] = uint8_t(ring);
+    if (ring < rings_) pending_[ring].push_back(v);
+  }
+
+  uint32_t owner_;
+  int rings_;
+  GrowingGidMap ids_;                          // gid → vertex
+  size_t indexed_vertices_ = 0;                // records indexed so far
+  std::vector<uint32_t> record_;               // vertex → the record standing for it
+  std::vector<std::array<uint32_t, 3>> local_; // face → its corners' vertices
+  // Fans as lists through the faces' corners: head_[v] → 3 f + k → next_[3 f + k] ...
+  std::vector<uint32_t> head_, next_, loaded_;
+  std::vector<uint8_t> ring_;                  // per vertex: its ring (kUnreached: none)
+  // Per face: the ring of its corners it was reached for (0: owned; kUnreached: none).
+  std::vector<uint8_t> face_ring_;
+  std::vector<std::vector<uint32_t>> pending_; // per ring: vertices to expand
+  std::vector<uint32_t> blocked_;              // expanded vertices whose fans were not whole
+};
+
 // The finish's patch: the whole gathered state as one PatchInput (everything owned,
-// nothing incomplete). Unlike build_patch it needs no fans or BFS. The records are
+// nothing incomplete). Unlike a part's (PatchBfs) it needs no fans or BFS. The records are
 // copied block by block, vertices first (the faces need their gids: local index = rank
 // among the sorted, unique gids), and each copied block's pages go back to the OS at
 // once (engine::release_pages), so the records and the input's arrays are never both
@@ -919,17 +1025,7 @@ PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   for (size_t begin = 0; begin < nv; begin += kVertexBlock) {
     const size_t end = std::min(nv, begin + kVertexBlock);
     for (size_t v = begin; v < end; ++v) {
-      const VertexRecord& r = g.vertices[v];
-      in.vertex_gids.push_back(r.gid);
-      in.positions.push_back(r.position);
-      if (given_quadrics) {
-        in.locked.push_back(r.locked);
-        in.quadrics.push_back(r.quadric);
-      }
-      if (bests) {
-        in.best_gids.push_back(r.best_gid);
-        in.best_costs.push_back(r.best_cost);
-      }
+      append_vertex(in, g.vertices[v], given_quadrics, bests);
     }
     released = engine::release_pages(released, g.vertices.data() + end);
   }
@@ -1027,11 +1123,12 @@ struct Runner {
 
   // Gathers a part's patch and builds it: the runs that may hold owned faces, then,
   // while the BFS is blocked at vertices whose fans were not read, the runs that hold
-  // those vertices (one batch of reads per stop; each run is read at most once). What
-  // is read changes, never the patch. Holds at most `limit_faces` gathered faces (over
-  // that: `g.over_limit`, nothing held, no patch built).
-  BuiltPatch gather_and_build(const MeshState& state, const PatchPart& part, int rings, uint64_t limit_faces,
-                              Gathered& g, PhaseClock& clock) {
+  // those vertices (one batch of reads per stop; each run is read at most once). The
+  // BFS goes on over each batch (PatchBfs) rather than starting over. What is read
+  // changes, never the patch. Holds at most `limit_faces` gathered faces (over that:
+  // `g.over_limit`, nothing held, no patch: nullopt).
+  std::optional<PatchInput> gather_and_build(const MeshState& state, const PatchPart& part, int rings,
+                                             uint64_t limit_faces, Gathered& g, PhaseClock& clock) {
     // Reserved up front at upper bounds (a face brings at most 3 vertex records):
     // growth by doubling would hold the old and the new arrays at once (a spike outside
     // the patch lease); untouched reserved pages cost no RSS.
@@ -1039,17 +1136,26 @@ struct Runner {
     g.vertices.reserve(3 * limit_faces);
     std::vector<RunMask> read(state.chunks.size(), 0);
     std::vector<RunRead> reads = owned_runs(state, part);
+    PatchBfs bfs(part.owner, rings, limit_faces);
     for (;;) {
       for (const RunRead& r : reads) read[r.chunk] |= r.runs;
       read_runs(job, scratch, state, reads, part, g, limit_faces);
       ++stats.gather_reads;
       clock.charge(kGather);
-      if (g.over_limit || g.owned_faces == 0) return {};
-      BuiltPatch built;
-      job.arena().execute([&] { built = build_patch(g, part.owner, rings, false, carry_bests); });
+      if (g.over_limit || g.owned_faces == 0) return std::nullopt;
+      std::vector<Point> blocked;
+      job.arena().execute([&] {
+        bfs.add(g);
+        blocked = bfs.run(g);
+      });
       clock.charge(kBuild);
-      if (built.blocked.empty()) return built;
-      reads = runs_holding(state, built.blocked, read);
+      if (blocked.empty()) {
+        std::optional<PatchInput> input;
+        job.arena().execute([&] { input = bfs.build(g, carry_bests); });
+        clock.charge(kBuild);
+        return input;
+      }
+      reads = runs_holding(state, blocked, read);
       if (reads.empty()) throw Error(ErrorKind::internal, "a vertex's faces are not in the mesh state");
     }
   }
@@ -1071,7 +1177,7 @@ struct Runner {
       Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
       job.check();
       Gathered g;
-      BuiltPatch built = gather_and_build(state, part, rings, lease.bytes() / kPatchBytesPerFace, g, clock);
+      std::optional<PatchInput> built = gather_and_build(state, part, rings, lease.bytes() / kPatchBytesPerFace, g, clock);
       stats.gathered_faces_total += g.found_faces;
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
@@ -1081,15 +1187,15 @@ struct Runner {
       lease.shrink_to(g.faces.size() * kPatchBytesPerFace);
       const uint64_t owned_faces = g.owned_faces;
       g = {};
-      stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
-      stats.patch_faces_total += built.input.faces.size();
+      stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built->faces.size());
+      stats.patch_faces_total += built->faces.size();
       stats.owned_faces_total += owned_faces;
       bool ok = true;
       RoundSummary summary;
       std::vector<Candidate> owned;
       std::optional<PatchOutput> out;
       job.arena().execute([&] {
-        PatchDecimator d(std::move(built.input), params);
+        PatchDecimator d(std::move(*built), params);
         stats.carried_bests += d.restored_bests();
         clock.charge(kSetup);
         run_patch_plan(d, plan, clock, stats.first_round_refreshes);

@@ -31,10 +31,11 @@
 //   holds the vertex. The gather reads the runs that may hold owned faces, then runs
 //   the BFS over what it read; where the BFS must expand a vertex whose fan is not
 //   whole there (loaded faces < degree), it goes on around it, and one batch of reads
-//   brings every run not yet read whose box holds such a vertex; then the BFS runs
-//   again (counted: gather_reads), until no vertex is blocked (at most rings + 1
-//   times: each batch completes the fans that stopped the BFS). A run is read at most
-//   once per gather, so no face is held twice. What is read changes, never the patch.
+//   brings every run not yet read whose box holds such a vertex; then the BFS goes on
+//   from those vertices over the new faces (its index and rings are kept across the
+//   batches, not rebuilt; counted: gather_reads), until no vertex is blocked (at most
+//   rings + 1 batches: each completes the fans that stopped the BFS). A run is read at
+//   most once per gather, so no face is held twice. What is read changes, never the patch.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
 // - Memory: a patch runs under one governor lease of kPatchBytesPerFace per gathered
