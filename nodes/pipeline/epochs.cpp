@@ -616,19 +616,73 @@ std::vector<RunRead> runs_holding(const MeshState& state, const std::vector<Poin
   return reads;
 }
 
+// The faces of run k of a chunk of `faces` faces (ChunkMeta::part_of).
+uint64_t run_faces(uint64_t faces, size_t k) {
+  auto first = [&](size_t run) { return (run * faces + ChunkMeta::kParts - 1) / ChunkMeta::kParts; };
+  return first(k + 1) - first(k);
+}
+
+// The runs a gather decoded with a chunk's frame but had not asked for yet (not read,
+// not asked for in that batch), each a blob filtered as a read's: a later batch that
+// asks for them takes them from here, so no frame is read and decoded twice in a
+// gather. Opportunistic: it holds runs only within the patch lease's room (the faces
+// the lease covers that the gather has neither found nor asked for), so it changes
+// neither what the gather finds nor what it may hold.
+struct RunCache {
+  std::mutex mutex;
+  std::unordered_map<size_t, std::array<Bytes, ChunkMeta::kParts>> runs;  // by chunk
+  std::unordered_map<size_t, RunMask> held;                                // by chunk
+  int64_t room = 0;              // faces it may still take in this batch (under `mutex`)
+  uint64_t faces = 0;            // faces it holds
+};
+
+// Appends a filtered blob's faces and vertex records to `g` (or, once over the limit,
+// only counts them).
+void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, uint64_t limit_faces) {
+  g.found_faces += v.faces;
+  for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part.owner;
+  if (g.found_faces > limit_faces) g.over_limit = true;
+  if (g.over_limit) return;
+  g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
+  g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
+}
+
 // Reads the given runs of the given chunks (one batch of frames through the job's I/O
 // thread) and appends their faces, and the vertex records those use, to `g`; the owner's
-// faces outside the part's region get kNotInPart. Once `g` would hold more than
+// faces outside the part's region get kNotInPart. Runs the cache holds are taken from
+// it instead; of a frame read, the runs not read before (`read`: per chunk, including
+// this batch's) go to the cache while it has room. Once `g` would hold more than
 // `limit_faces` faces it holds nothing (over_limit) and only counts.
 void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const std::vector<RunRead>& reads,
-               const PatchPart& part, Gathered& g, uint64_t limit_faces) {
+               const std::vector<RunMask>& read, const PatchPart& part, Gathered& g, uint64_t limit_faces,
+               RunCache& cache) {
   std::vector<FrameRef> frames;
   // A chunk's frame is told apart by its first face id (faces are in one chunk each).
-  std::unordered_map<uint64_t, RunMask> runs_of;
+  std::unordered_map<uint64_t, RunRead> runs_of;
+  uint64_t asked_faces = 0;
   for (const RunRead& r : reads) {
+    const auto held = cache.held.find(r.chunk);
+    const RunMask cached = held == cache.held.end() ? 0 : RunMask(held->second & r.runs);
+    const ChunkMeta& m = state.chunks[r.chunk].meta;
+    for (size_t k = 0; k < ChunkMeta::kParts; ++k) {
+      if (!(cached >> k & 1u)) {
+        if (r.runs >> k & 1u) asked_faces += run_faces(m.faces, k);
+        continue;
+      }
+      Bytes& blob = cache.runs[r.chunk][k];
+      const BlobView v = view_blob(blob.data(), blob.size());
+      cache.faces -= v.faces;
+      gather_blob(v, part, g, limit_faces);
+      release_memory(blob);
+    }
+    if (cached) held->second &= RunMask(~cached);
+    const RunMask rest = RunMask(r.runs & ~cached);
+    if (!rest) continue;
     frames.push_back(state.chunks[r.chunk].frame);
-    runs_of.emplace(state.chunks[r.chunk].meta.first_fid, r.runs);
+    runs_of.emplace(m.first_fid, RunRead{r.chunk, rest});
   }
+  if (g.over_limit) frames.clear();
+  cache.room = int64_t(limit_faces) - int64_t(g.found_faces + asked_faces + cache.faces);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
@@ -636,7 +690,22 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
         if (v.faces == 0) return;
         const auto found = runs_of.find(v.face[0].fid);
         if (found == runs_of.end()) throw Error(ErrorKind::internal, "state chunk not asked for");
-        const RunMask runs = found->second;
+        const RunMask runs = found->second.runs;
+        const size_t chunk = found->second.chunk;
+        // The runs not read yet go to the cache, as many as its room takes.
+        RunMask to_cache = 0;
+        {
+          const std::lock_guard lock(cache.mutex);
+          const auto held = cache.held.find(chunk);
+          const RunMask unread = RunMask(~read[chunk] & ~(held == cache.held.end() ? 0 : held->second));
+          for (size_t k = 0; k < ChunkMeta::kParts; ++k) {
+            const int64_t faces = int64_t(run_faces(v.faces, k));
+            if ((unread >> k & 1u) && faces > 0 && cache.room >= faces) {
+              cache.room -= faces;
+              to_cache |= RunMask(1u << k);
+            }
+          }
+        }
         const bool owners = header.tag == part.owner;
         if (runs == kAllRuns && (!owners || part.whole)) return;  // kept as it is
         const GidTable table(v.vertices, [&](size_t i) { return v.vertex[i].gid; });
@@ -645,36 +714,54 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
           if (i == GidTable::kMissing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
           return size_t(i);
         };
+        // Per vertex: bit k, used by a face of run k.
         std::vector<uint8_t> used(v.vertices, 0);
-        std::vector<FaceRecord> kept;
+        std::array<std::vector<FaceRecord>, ChunkMeta::kParts> kept;
+        const RunMask wanted = RunMask(runs | to_cache);
         for (uint64_t j = 0; j < v.faces; ++j) {
-          if (!(runs >> ChunkMeta::part_of(j, v.faces) & 1u)) continue;
+          const size_t k = ChunkMeta::part_of(j, v.faces);
+          if (!(wanted >> k & 1u)) continue;
           const FaceRecord& f = v.face[j];
           const size_t a = index_of(f.v[0]), b = index_of(f.v[1]), c = index_of(f.v[2]);
-          kept.push_back(f);
+          kept[k].push_back(f);
           if (owners && !part.whole) {
             Point centroid{};
             for (size_t corner : {a, b, c})
-              for (int k = 0; k < 3; ++k) centroid[k] += v.vertex[corner].position[k];
-            for (int k = 0; k < 3; ++k) centroid[k] /= 3;
-            if (!part.region.contains_half_open(centroid)) kept.back().owner = kNotInPart;
+              for (int d = 0; d < 3; ++d) centroid[d] += v.vertex[corner].position[d];
+            for (int d = 0; d < 3; ++d) centroid[d] /= 3;
+            if (!part.region.contains_half_open(centroid)) kept[k].back().owner = kNotInPart;
           }
-          used[a] = used[b] = used[c] = 1;
+          used[a] |= RunMask(1u << k);
+          used[b] |= RunMask(1u << k);
+          used[c] |= RunMask(1u << k);
         }
-        std::vector<VertexRecord> verts;
-        for (uint64_t i = 0; i < v.vertices; ++i)
-          if (used[i]) verts.push_back(v.vertex[i]);
-        Bytes blob = make_blob(kept, verts);
+        // The asked runs as one blob (replacing the records), each cached run as its own.
+        auto blob_of = [&](RunMask mask) {
+          std::vector<FaceRecord> faces;
+          for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+            if (mask >> k & 1u) faces.insert(faces.end(), kept[k].begin(), kept[k].end());
+          std::vector<VertexRecord> verts;
+          for (uint64_t i = 0; i < v.vertices; ++i)
+            if (used[i] & mask) verts.push_back(v.vertex[i]);
+          return make_blob(faces, verts);
+        };
+        std::array<Bytes, ChunkMeta::kParts> cached;
+        for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+          if (to_cache >> k & 1u) cached[k] = blob_of(RunMask(1u << k));
+        Bytes blob = blob_of(runs);
         records.swap(blob);
+        if (!to_cache) return;
+        const std::lock_guard lock(cache.mutex);
+        auto& slots = cache.runs[chunk];
+        for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+          if (to_cache >> k & 1u) {
+            slots[k].swap(cached[k]);
+            cache.faces += kept[k].size();
+          }
+        cache.held[chunk] |= to_cache;
       },
       [&](const FrameHeader&, Bytes& records, Lease&) {
-        const BlobView v = view_blob(records.data(), records.size());
-        g.found_faces += v.faces;
-        for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part.owner;
-        if (g.found_faces > limit_faces) g.over_limit = true;
-        if (g.over_limit) return;
-        g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
-        g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
+        gather_blob(view_blob(records.data(), records.size()), part, g, limit_faces);
       },
       0);
   if (g.over_limit) {
@@ -1137,9 +1224,10 @@ struct Runner {
     std::vector<RunMask> read(state.chunks.size(), 0);
     std::vector<RunRead> reads = owned_runs(state, part);
     PatchBfs bfs(part.owner, rings, limit_faces);
+    RunCache cache;
     for (;;) {
       for (const RunRead& r : reads) read[r.chunk] |= r.runs;
-      read_runs(job, scratch, state, reads, part, g, limit_faces);
+      read_runs(job, scratch, state, reads, read, part, g, limit_faces, cache);
       ++stats.gather_reads;
       clock.charge(kGather);
       if (g.over_limit || g.owned_faces == 0) return std::nullopt;
@@ -1150,6 +1238,7 @@ struct Runner {
       });
       clock.charge(kBuild);
       if (blocked.empty()) {
+        cache.runs.clear();  // runs no batch asked for (none when the room was short)
         std::optional<PatchInput> input;
         job.arena().execute([&] { input = bfs.build(g, carry_bests); });
         clock.charge(kBuild);

@@ -35,7 +35,9 @@
 //   from those vertices over the new faces (its index and rings are kept across the
 //   batches, not rebuilt; counted: gather_reads), until no vertex is blocked (at most
 //   rings + 1 batches: each completes the fans that stopped the BFS). A run is read at
-//   most once per gather, so no face is held twice. What is read changes, never the patch.
+//   most once per gather, so no face is held twice; a frame read for some of its runs
+//   leaves the others in a cache within the lease's room, so a later batch asking for
+//   them reads no frame twice. What is read changes, never the patch.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
 // - Memory: a patch runs under one governor lease of kPatchBytesPerFace per gathered
