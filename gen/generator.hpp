@@ -65,6 +65,12 @@ void generate(const GenOptions& options, MeshSink& sink);
 // tests and examples with small meshes.
 io::IndexedMesh generate_in_memory(const GenOptions& options);
 
+// The same surface with its vertices and its faces each in an order drawn from `seed`
+// (a pure function of the mesh and the seed): an input without locality, whose face
+// stream jumps across the whole mesh (what a scanner's merged or re-indexed output can
+// look like), for the tests of what such an order costs out of core.
+void shuffle(io::IndexedMesh& mesh, uint64_t seed);
+
 // Streams the mesh to a file through io::open_mesh_writer (format by extension:
 // .ply binary, .obj, optionally .zst); the file appears only when complete.
 struct GenStats {

@@ -8,9 +8,13 @@
 #include <atomic>
 #include <bit>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <limits>
 #include <numeric>
 #include <stdexcept>
+#include <string>
 #include <type_traits>
 #include <utility>
 
@@ -231,6 +235,14 @@ void renumber_for_locality(PatchInput& in) {
 
 }  // namespace
 
+bool verify_carried_enabled() {
+  static const bool on = [] {
+    const char* value = std::getenv("QEMFLOW_VERIFY_CARRIED");
+    return value && *value && std::strcmp(value, "0") != 0;
+  }();
+  return on;
+}
+
 size_t cost_bin(double cost) {
   return static_cast<size_t>(std::bit_cast<uint64_t>(cost > 0.0 ? cost : 0.0) >> 50);
 }
@@ -256,7 +268,12 @@ struct PatchDecimator::Scratch {
     Vec3 position;
   };
   std::vector<Option> options;
-  std::vector<FanEdge> fan;
+  // fan_neighbors(): the first fan_size entries of fan_store (sized, never shrunk, so
+  // filling it is plain stores rather than push_back's capacity checks).
+  std::vector<FanEdge> fan_store;
+  std::vector<uint32_t> fan_prev;  // the vertex before v in each of its faces
+  uint32_t fan_size = 0;
+  std::span<const FanEdge> fan() const { return {fan_store.data(), fan_size}; }
   std::vector<uint32_t> next, prev;  // fan_links()
   std::vector<double> areas;
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
@@ -382,6 +399,73 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
     const uint32_t w = best_[v];
     if (w != kNone && restored[w] && best_[w] == v) partner_[v] = w;
   }
+  if (verify_carried_enabled() && restored_bests_ > 0) verify_restored_ = std::move(restored);
+}
+
+std::pair<uint32_t, double> PatchDecimator::best_from_scratch(uint32_t v, Scratch& s) const {
+  // refresh_best's result without its shortcuts: every unlocked neighbour's edge costed
+  // in full (quadric part + deviation charge, as quadric_cost / edge_cost compute them)
+  // and checked for validity; the smallest valid key wins. Reads no cached cost or
+  // validity (deviation() may fill the face-area cache, a pure function of the state).
+  if (vflag_[v] & (kDead | kLocked)) return {kNone, 0.0};
+  const std::span<const uint32_t> corners = corners_of(v);
+  fan_neighbors(v, corners, s);
+  uint32_t best = kNone;
+  EdgeKey best_key{};
+  for (const auto& [w, corner, twin] : s.fan()) {
+    if (vflag_[w] & kLocked) continue;
+    const Vec3 p = edge_position(v, w);
+    double cost = quadric_error(quadric_[v] + quadric_[w], p);
+    if (!(std::isfinite(cost) && std::isfinite(p[0] + p[1] + p[2]))) continue;
+    if (params_.deviation_weight > 0.0) {
+      const bool v_lo = vgid_[v] < vgid_[w];
+      cost = cost + params_.deviation_weight * (v_lo ? deviation(v, w, p, s) : deviation(w, v, p, s));
+      if (!std::isfinite(cost)) continue;
+    }
+    const EdgeKey key = EdgeKey::of(cost, vgid_[v], vgid_[w]);
+    if (best != kNone && !(key < best_key)) continue;
+    if (!collapse_valid(v, corners, s.fan(), w, p)) continue;
+    best = w;
+    best_key = key;
+  }
+  return {best, best == kNone ? 0.0 : best_key.cost};
+}
+
+void PatchDecimator::verify_restored_bests() {
+  // Called by the first prepare once the touched vertices' border flags are current
+  // (collapse_valid reads both endpoints'), before any refresh: best_ / best_cost_ of a
+  // restored vertex are still the carried values.
+  std::atomic<uint64_t> worst_gid{~uint64_t{0}};
+  std::vector<uint64_t> found(pos_.size(), 0);  // 1 + v at the mismatches
+  tbb::enumerable_thread_specific<Scratch> scratch;
+  parallel_over_with(pos_.size(), scratch, [&](size_t vi, Scratch& s) {
+    if (!verify_restored_[vi]) return;
+    const uint32_t v = static_cast<uint32_t>(vi);
+    const auto [w, cost] = best_from_scratch(v, s);
+    if (w == best_[v] && std::bit_cast<uint64_t>(cost) == std::bit_cast<uint64_t>(best_cost_[v])) return;
+    found[v] = 1;
+    uint64_t seen = worst_gid.load();
+    while (vgid_[v] < seen && !worst_gid.compare_exchange_weak(seen, vgid_[v])) {
+    }
+  });
+  release_memory(verify_restored_);
+  if (worst_gid.load() == ~uint64_t{0}) return;
+  uint64_t mismatches = 0;
+  uint32_t v = kNone;
+  for (uint32_t u = 0; u < pos_.size(); ++u)
+    if (found[u]) {
+      ++mismatches;
+      if (vgid_[u] == worst_gid.load()) v = u;
+    }
+  Scratch s;
+  const auto [w, cost] = best_from_scratch(v, s);
+  auto gid_of = [&](uint32_t x) { return x == kNone ? std::string("none") : std::to_string(vgid_[x]); };
+  char costs[96];
+  std::snprintf(costs, sizeof costs, "cost %.17g, a full refresh cost %.17g", best_cost_[v], cost);
+  throw std::logic_error("QEMFLOW_VERIFY_CARRIED: the carried best edge of vertex " + std::to_string(vgid_[v]) +
+                         " leads to " + gid_of(best_[v]) + " (" + costs + " to " + gid_of(w) + "); " +
+                         std::to_string(mismatches) + " of " + std::to_string(restored_bests_) +
+                         " restored bests differ");
 }
 
 void PatchDecimator::rebuild_adjacency(size_t extra) {
@@ -611,7 +695,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   fan_neighbors(v, corners, s);
   s.options.clear();
   const bool charged = params_.deviation_weight > 0.0;
-  for (const auto& [w, corner, twin] : s.fan) {
+  for (const auto& [w, corner, twin] : s.fan()) {
     if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
     // Unknown costs start from their quadric part, a lower bound of the cost: the
     // deviation part is computed only for options that could still win.
@@ -659,7 +743,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       if (o.key.cost != kSkipEdge && o.key < bound) continue;
     } else {
       checked = true;
-      if (edge_valid(v, corners, s.fan, o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr)) {
+      if (edge_valid(v, corners, s.fan(), o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr)) {
         best_[v] = o.other;
         best_cost_[v] = o.key.cost;
         return;
@@ -801,20 +885,31 @@ void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners
   // the corner whose edge (corner vertex -> next vertex) joins it to v, and the twin
   // corner of the same edge in the face on its other side (w -> v), if any: both
   // cache the edge's cost.
-  fan_links(corners, s);
   const uint32_t n = static_cast<uint32_t>(corners.size());
-  std::vector<FanEdge>& out = s.fan;
-  out.clear();
-  for (uint32_t i = 0; i < n; ++i) out.push_back({s.next[i], corners[i], kNone});
+  if (s.fan_store.size() < 2 * size_t{n}) {  // a border fan lists up to 2n
+    s.fan_store.resize(2 * size_t{n});
+    s.fan_prev.resize(2 * size_t{n});
+  }
+  FanEdge* out = s.fan_store.data();
+  uint32_t* prev = s.fan_prev.data();
+  for (uint32_t i = 0; i < n; ++i) {
+    const uint32_t c = corners[i], slot = c % 3;
+    const auto& t = fv_[c / 3];
+    out[i] = {t[kNextSlot[slot]], c, kNone};
+    prev[i] = t[kPrevSlot[slot]];
+  }
+  uint32_t count = n;
   const bool border = (vflag_[v] & kBorder) != 0;
   for (uint32_t i = 0; i < n; ++i) {
     const uint32_t c = corners[i], before = c - c % 3 + kPrevSlot[c % 3];  // prev -> v
-    const uint32_t at = index_of(s.next.data(), n, s.prev[i]);
+    uint32_t at = 0;  // the neighbour after v that is prev[i] (fans are short: a scan)
+    while (at < n && out[at].other != prev[i]) ++at;
     if (at != n)
       out[at].twin = before;
     else if (border)
-      out.push_back({s.prev[i], before, kNone});
+      out[count++] = {prev[i], before, kNone};
   }
+  s.fan_size = count;
 }
 
 void PatchDecimator::update_border(uint32_t v, Scratch& s) {
@@ -930,6 +1025,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
           if (!is_lower_bound(load_cost(corner_cost_, k))) store_cost(corner_cost_, k, kUnknownCost);
     }
   });
+  if (!verify_restored_.empty()) verify_restored_bests();
   // A stale vertex was skipped by a round with a cut >= stale_floor_ because all its
   // edges cost more; while untouched its edge costs stay, so under a cut <= that
   // floor it would be skipped again.

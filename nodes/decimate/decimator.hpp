@@ -61,6 +61,13 @@
 //   `locked` is given); their faces pass through. Faces with a repeated vertex (zero
 //   area) are dropped and counted (dropped_faces()); with drop_repeated_vertex_faces =
 //   false they pass through and lock their vertices. No other input face is dropped.
+// - Verification of carried bests (QEMFLOW_VERIFY_CARRIED=1 in the environment, read
+//   once per process; off: one flag test per decimator): the first prepare_round
+//   recomputes every best the constructor restored from PatchInput::best_gids by a
+//   full, uncached evaluation of its edges (before any refresh may replace it) and
+//   throws std::logic_error naming the vertex's global id when the restored (edge,
+//   cost) differs from it in any bit. Costs one full evaluation per restored vertex;
+//   the results are the same bits with it on or off.
 // - Thread safety: a PatchDecimator is used by one caller at a time; its methods run
 //   oneTBB parallel loops internally.
 #include <array>
@@ -84,6 +91,11 @@ inline constexpr int kInitialQuadricRadius = 2;
 // Rings best(v) reads (the validity and cost of every edge at v): a best edge computed
 // where every vertex within this many rings is trusted is the global one.
 inline constexpr int kBestRadius = 2;
+// QEMFLOW_VERIFY_CARRIED=1 (see the contract): checks carried state (here: restored
+// bests; the out-of-core pipeline also checks that every copy of a repeated vertex
+// record agrees). Read once per process.
+bool verify_carried_enabled();
+
 // PatchInput / PatchOutput::best_gids values besides a neighbour's global id.
 inline constexpr uint64_t kBestUnknown = ~uint64_t{0};    // not carried: refresh
 inline constexpr uint64_t kBestNone = ~uint64_t{0} - 1;   // exact: no valid edge
@@ -276,6 +288,10 @@ class PatchDecimator {
   }
   void lock_nonmanifold_vertices();
   void restore_bests(const std::vector<uint64_t>& gids, const std::vector<double>& costs);
+  // QEMFLOW_VERIFY_CARRIED: v's best edge by evaluating every edge in full (no cached
+  // cost or validity), and the check of the restored ones against it.
+  std::pair<uint32_t, double> best_from_scratch(uint32_t v, Scratch& s) const;
+  void verify_restored_bests();
   void compute_quadrics();
   void compact_storage();
   void prepare(const EdgeKey* cut);
@@ -360,6 +376,9 @@ class PatchDecimator {
   uint64_t dropped_faces_ = 0;
   uint64_t untrusted_count_ = 0;
   uint64_t restored_bests_ = 0, refreshes_ = 0;
+  // QEMFLOW_VERIFY_CARRIED: the vertices restore_bests restored, until the first
+  // prepare checks them (empty otherwise).
+  std::vector<uint8_t> verify_restored_;
   // The last step was a plain prepare_round: every best_ is exact (extract carries them).
   bool bests_exact_ = false;
   std::vector<uint8_t> fowned_;      // per face, empty when all owned

@@ -6,6 +6,8 @@
 #include <chrono>
 #include <cmath>
 #include <ctime>
+#include <cstddef>
+#include <cstdlib>
 #include <cstring>
 #include <deque>
 #include <limits>
@@ -54,6 +56,54 @@ struct VertexRecord {
   double best_cost = 0.0;
 };
 static_assert(sizeof(VertexRecord) == 136);
+
+// Copies of one vertex's record (written by every patch that exported one of its
+// faces) must agree on all but the carried best, which a copy may lack (kBestUnknown);
+// two known bests must agree too. Checked under QEMFLOW_VERIFY_CARRIED (decimator.hpp):
+// throws naming the gid.
+void check_copies_agree(const VertexRecord& kept, const VertexRecord& copy) {
+  constexpr size_t kState = offsetof(VertexRecord, best_gid);  // gid .. has_quadric, unused
+  const bool state_equal = std::memcmp(&kept, &copy, kState) == 0;
+  const bool bests_equal = kept.best_gid == kBestUnknown || copy.best_gid == kBestUnknown ||
+                           (kept.best_gid == copy.best_gid &&
+                            std::bit_cast<uint64_t>(kept.best_cost) == std::bit_cast<uint64_t>(copy.best_cost));
+  if (state_equal && bests_equal) return;
+  std::string what = state_equal ? "carried best" : "";
+  if (!state_equal) {
+    if (std::memcmp(&kept.position, &copy.position, sizeof kept.position)) what += " position";
+    if (std::memcmp(&kept.quadric, &copy.quadric, sizeof kept.quadric)) what += " quadric";
+    if (kept.degree != copy.degree)
+      what += " degree (" + std::to_string(kept.degree) + " vs " + std::to_string(copy.degree) + ")";
+    if (kept.locked != copy.locked) what += " lock";
+    if (kept.has_quadric != copy.has_quadric) what += " has_quadric";
+    if (!bests_equal) what += " carried best";
+  }
+  throw Error(ErrorKind::internal, "QEMFLOW_VERIFY_CARRIED: two copies of the state record of vertex " +
+                                       std::to_string(kept.gid) + " differ in:" + (state_equal ? " " : "") + what);
+}
+
+// QEMFLOW_FUZZ_ORDER=SEED (epochs.hpp): the seed, 0 when unset. Read once.
+uint64_t order_fuzz_seed() {
+  static const uint64_t seed = [] {
+    const char* value = std::getenv("QEMFLOW_FUZZ_ORDER");
+    return value ? std::strtoull(value, nullptr, 10) : 0ull;
+  }();
+  return seed;
+}
+// A fresh pseudo-random value per call (per gather, per patch build) from the seed.
+uint64_t next_fuzz_salt() {
+  static std::atomic<uint64_t> calls{0};
+  return mix64(order_fuzz_seed() * 0x9E3779B97F4A7C15ull + ++calls) | 1;
+}
+// Puts `items` in a pseudo-random order (Fisher-Yates on next_fuzz_salt()).
+template <class Items>
+void shuffle(Items& items, uint64_t /*seed*/) {
+  uint64_t x = next_fuzz_salt();
+  for (size_t i = items.size(); i > 1; --i) {
+    x = mix64(x + i);
+    std::swap(items[i - 1], items[size_t(x % i)]);
+  }
+}
 
 struct Box {
   Point min{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
@@ -181,6 +231,52 @@ class GidTable {
   int shift_ = 0;
   size_t mask_ = 0;
   std::vector<std::pair<uint64_t, uint32_t>> slots_;
+};
+
+// The gathered vertex records, one per gid, appended to `records` (which must not
+// reallocate: reserved at its upper bound): a gid's records in several chunks are equal
+// copies but for the carried best, and the one kept is the first with a known best, else
+// the first (build_patch's rule, so the patch is the same). Without this, a state whose
+// chunks share few vertices (the first state of an input in random face order: ~2.8
+// records per face, against ~0.6) held ~4x the vertex records the patch lease
+// (kPatchBytesPerFace) counts. An open-addressing table of record indices (4 bytes a
+// slot, the gid read from the record) that doubles as records come.
+class UniqueVertexRecords {
+ public:
+  explicit UniqueVertexRecords(std::vector<VertexRecord>& records) : records_(records) { rehash(1024); }
+  void add(const VertexRecord& r) {
+    if (2 * (records_.size() + 1) > slots_.size()) rehash(2 * slots_.size());
+    size_t at = slot_of(r.gid);
+    for (; slots_[at] != kEmpty; at = (at + 1) & mask_) {
+      VertexRecord& kept = records_[slots_[at]];
+      if (kept.gid != r.gid) continue;
+      if (verify_) check_copies_agree(kept, r);
+      if (kept.best_gid == kBestUnknown && r.best_gid != kBestUnknown) kept = r;
+      return;
+    }
+    slots_[at] = uint32_t(records_.size());
+    records_.push_back(r);
+  }
+
+ private:
+  static constexpr uint32_t kEmpty = std::numeric_limits<uint32_t>::max();
+  size_t slot_of(uint64_t gid) const { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift_); }
+  void rehash(size_t slots) {
+    release_memory(slots_);  // the old table is not kept beside the new one
+    slots_.assign(slots, kEmpty);
+    shift_ = 64 - std::countr_zero(slots);
+    mask_ = slots - 1;
+    for (uint32_t i = 0; i < records_.size(); ++i) {
+      size_t at = slot_of(records_[i].gid);
+      while (slots_[at] != kEmpty) at = (at + 1) & mask_;
+      slots_[at] = i;
+    }
+  }
+  std::vector<VertexRecord>& records_;
+  const bool verify_ = verify_carried_enabled();
+  std::vector<uint32_t> slots_;
+  int shift_ = 0;
+  size_t mask_ = 0;
 };
 
 // Builds a chunk blob from faces and the (gid-sorted, deduplicated) vertex records they use.
@@ -516,8 +612,8 @@ struct PatchPart {
 inline constexpr uint32_t kNotInPart = std::numeric_limits<uint32_t>::max();
 
 struct Gathered {
-  // Sorted by fid / by gid and unique for the finish (no part); as read for a part
-  // (a gid's records may repeat: equal copies).
+  // Sorted by fid / by gid for the finish (no part); as read for a part. One record
+  // per gid either way (UniqueVertexRecords).
   std::vector<FaceRecord> faces;
   std::vector<VertexRecord> vertices;
   uint64_t found_faces = 0;  // faces the gather read (= faces.size() unless over_limit)
@@ -638,13 +734,14 @@ struct RunCache {
 
 // Appends a filtered blob's faces and vertex records to `g` (or, once over the limit,
 // only counts them).
-void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, uint64_t limit_faces) {
+void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, uint64_t limit_faces,
+                 UniqueVertexRecords& unique_vertices) {
   g.found_faces += v.faces;
   for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part.owner;
   if (g.found_faces > limit_faces) g.over_limit = true;
   if (g.over_limit) return;
   g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
-  g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
+  for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
 }
 
 // Reads the given runs of the given chunks (one batch of frames through the job's I/O
@@ -655,7 +752,7 @@ void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, uint64_t
 // `limit_faces` faces it holds nothing (over_limit) and only counts.
 void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const std::vector<RunRead>& reads,
                const std::vector<RunMask>& read, const PatchPart& part, Gathered& g, uint64_t limit_faces,
-               RunCache& cache) {
+               UniqueVertexRecords& unique_vertices, RunCache& cache) {
   std::vector<FrameRef> frames;
   // A chunk's frame is told apart by its first face id (faces are in one chunk each).
   std::unordered_map<uint64_t, RunRead> runs_of;
@@ -672,7 +769,7 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
       Bytes& blob = cache.runs[r.chunk][k];
       const BlobView v = view_blob(blob.data(), blob.size());
       cache.faces -= v.faces;
-      gather_blob(v, part, g, limit_faces);
+      gather_blob(v, part, g, limit_faces, unique_vertices);
       release_memory(blob);
     }
     if (cached) held->second &= RunMask(~cached);
@@ -682,6 +779,7 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
     runs_of.emplace(m.first_fid, RunRead{r.chunk, rest});
   }
   if (g.over_limit) frames.clear();
+  if (order_fuzz_seed()) shuffle(frames, order_fuzz_seed());
   cache.room = int64_t(limit_faces) - int64_t(g.found_faces + asked_faces + cache.faces);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1,
@@ -761,7 +859,7 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
         cache.held[chunk] |= to_cache;
       },
       [&](const FrameHeader&, Bytes& records, Lease&) {
-        gather_blob(view_blob(records.data(), records.size()), part, g, limit_faces);
+        gather_blob(view_blob(records.data(), records.size()), part, g, limit_faces, unique_vertices);
       },
       0);
   if (g.over_limit) {
@@ -779,16 +877,18 @@ Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
   for (const auto& c : state.chunks) frames.push_back(c.frame);
   g.faces.reserve(state.faces);
   g.vertices.reserve(state.blob_bytes_total / sizeof(VertexRecord) + 1);
+  UniqueVertexRecords unique_vertices(g.vertices);
+  if (order_fuzz_seed()) shuffle(frames, order_fuzz_seed());
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1, nullptr,
       [&](const FrameHeader&, Bytes& records, Lease&) {
         const BlobView v = view_blob(records.data(), records.size());
         g.found_faces += v.faces;
         g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
-        g.vertices.insert(g.vertices.end(), v.vertex, v.vertex + v.vertices);
+        for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
       },
       0);
-  // Keys are unique (face ids; a gid's records are equal copies), so a parallel sort
+  // Keys are unique (face ids; one record per gid), so a parallel sort
   // gives the same arrays. In the job's arena: --threads holds here too.
   job.arena().execute([&] {
     tbb::parallel_sort(g.faces.begin(), g.faces.end(),
@@ -796,27 +896,14 @@ Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
     tbb::parallel_sort(g.vertices.begin(), g.vertices.end(),
                        [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
   });
-  // A gid's records are equal copies but for the carried best, which one exporting
-  // patch may know and another not: keep a known one (two known ones are equal), so
-  // the result does not depend on the sort's order among equal keys.
-  size_t kept = 0;
-  for (size_t i = 0; i < g.vertices.size(); ++i) {
-    if (kept > 0 && g.vertices[kept - 1].gid == g.vertices[i].gid) {
-      if (g.vertices[kept - 1].best_gid == kBestUnknown) g.vertices[kept - 1] = g.vertices[i];
-      continue;
-    }
-    g.vertices[kept++] = g.vertices[i];
-  }
-  // The repeated records' pages (a few % of the records) would stay resident behind
-  // the kept ones until the array is freed.
-  engine::release_pages(g.vertices.data() + kept, g.vertices.data() + g.vertices.size());
-  g.vertices.resize(kept);
   return g;
 }
 
 // Appends a vertex record's fields to a PatchInput's per-vertex arrays (quadrics and
-// locks when the state has them, carried bests when they are valid).
-void append_vertex(PatchInput& in, const VertexRecord& r, bool quadrics, bool bests) {
+// locks when the state has them, carried bests when they are valid). `fuzz` (nonzero
+// under QEMFLOW_FUZZ_ORDER, a salt per build): a third of the bests are given as a
+// copy without one would give them.
+void append_vertex(PatchInput& in, const VertexRecord& r, bool quadrics, bool bests, uint64_t fuzz) {
   in.vertex_gids.push_back(r.gid);
   in.positions.push_back(r.position);
   if (quadrics) {
@@ -824,10 +911,13 @@ void append_vertex(PatchInput& in, const VertexRecord& r, bool quadrics, bool be
     in.locked.push_back(r.locked);
   }
   if (bests) {
-    in.best_gids.push_back(r.best_gid);
-    in.best_costs.push_back(r.best_cost);
+    const bool dropped = fuzz && mix64(r.gid ^ fuzz) % 3 == 0;
+    in.best_gids.push_back(dropped ? kBestUnknown : r.best_gid);
+    in.best_costs.push_back(dropped ? 0.0 : r.best_cost);
   }
 }
+
+uint64_t fuzz_salt() { return order_fuzz_seed() ? next_fuzz_salt() : 0; }
 
 // gid → dense id (0, 1, 2, ... in first-insert order), by open addressing that grows
 // as ids are added: the gather's index gains vertex records batch by batch.
@@ -886,9 +976,9 @@ class GrowingGidMap {
 // a pass blocks at the vertices a fresh BFS would (the reads, and the patch, are the
 // same). Owned faces are all in the first batch (owned_runs).
 //
-// A gid's records may repeat (equal copies but for the carried best, known ones
-// equal): the first with a known carried best stands for it, else the first read (as
-// the finish's dedup, so the patch does not depend on the read order).
+// The gather keeps one record per gid (UniqueVertexRecords: the first copy with a
+// known carried best, else the first read), so the patch does not depend on the read
+// order; a record it replaces keeps its index.
 class PatchBfs {
  public:
   PatchBfs(uint32_t owner, int rings, uint64_t limit_faces) : owner_(owner), rings_(rings), pending_(rings + 1) {
@@ -908,14 +998,12 @@ class PatchBfs {
     const VertexRecord* vb = g.vertices.data();
     for (size_t i = indexed_vertices_; i < g.vertices.size(); ++i) {
       bool added = false;
-      const uint32_t v = ids_.insert(vb[i].gid, added);
+      ids_.insert(vb[i].gid, added);  // a new gid but for a record replaced in place
       if (added) {
         record_.push_back(uint32_t(i));
         head_.push_back(kNone);
         loaded_.push_back(0);
         ring_.push_back(kUnreached);
-      } else if (vb[record_[v]].best_gid == kBestUnknown && vb[i].best_gid != kBestUnknown) {
-        record_[v] = uint32_t(i);
       }
     }
     indexed_vertices_ = g.vertices.size();
@@ -1017,6 +1105,7 @@ class PatchBfs {
     std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
     const bool given_quadrics = nv > 0 && vb[0].has_quadric;
     const bool carried = given_quadrics && carry_bests;
+    const uint64_t fuzz = fuzz_salt();
     // Exact sizes (no growth spikes).
     in.vertex_gids.reserve(kept_v);
     in.positions.reserve(kept_v);
@@ -1033,7 +1122,7 @@ class PatchBfs {
     for (const auto& [gid, v] : vorder) {
       const VertexRecord& r = vb[record_[v]];
       new_index[v] = uint32_t(in.vertex_gids.size());
-      append_vertex(in, r, given_quadrics, carried);
+      append_vertex(in, r, given_quadrics, carried, fuzz);
       const bool incomplete = inside[v] < r.degree;
       in.incomplete.push_back(incomplete);
       in.owned_vertex.push_back(!incomplete && first_owned[v]);
@@ -1098,6 +1187,7 @@ PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const bool given_quadrics = nv > 0 && g.vertices[0].has_quadric;
   const bool bests = given_quadrics && carry_bests;
+  const uint64_t fuzz = fuzz_salt();
   in.vertex_gids.reserve(nv);
   in.positions.reserve(nv);
   if (given_quadrics) {
@@ -1112,7 +1202,7 @@ PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   for (size_t begin = 0; begin < nv; begin += kVertexBlock) {
     const size_t end = std::min(nv, begin + kVertexBlock);
     for (size_t v = begin; v < end; ++v) {
-      append_vertex(in, g.vertices[v], given_quadrics, bests);
+      append_vertex(in, g.vertices[v], given_quadrics, bests, fuzz);
     }
     released = engine::release_pages(released, g.vertices.data() + end);
   }
@@ -1221,13 +1311,14 @@ struct Runner {
     // the patch lease); untouched reserved pages cost no RSS.
     g.faces.reserve(limit_faces);
     g.vertices.reserve(3 * limit_faces);
+    UniqueVertexRecords unique_vertices(g.vertices);
     std::vector<RunMask> read(state.chunks.size(), 0);
     std::vector<RunRead> reads = owned_runs(state, part);
     PatchBfs bfs(part.owner, rings, limit_faces);
     RunCache cache;
     for (;;) {
       for (const RunRead& r : reads) read[r.chunk] |= r.runs;
-      read_runs(job, scratch, state, reads, read, part, g, limit_faces, cache);
+      read_runs(job, scratch, state, reads, read, part, g, limit_faces, unique_vertices, cache);
       ++stats.gather_reads;
       clock.charge(kGather);
       if (g.over_limit || g.owned_faces == 0) return std::nullopt;
@@ -1447,6 +1538,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,
                                                     std::min<uint64_t>(1024, options.chunk_faces), options.chunk_faces);
   convert_blocks(job, scratch, mesh, partition, chunk_faces, *state);
+  if (const uint64_t seed = order_fuzz_seed()) shuffle(state->chunks, seed);
   // The conversion read the blocks (and an out-of-core load's vertex windows) for the
   // last time: their disk goes back before the epochs write each state beside the last
   // (at 200M faces about 6 GB of 31 GB).

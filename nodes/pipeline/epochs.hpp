@@ -48,6 +48,20 @@
 //   still does not fit is refused with the minimum budget (Error resource). The
 //   counts are in the report (patch_splits).
 // - All scratch and output I/O goes through the job's I/O thread.
+// - Order independence: a gather's records arrive in completion order (the I/O's
+//   timing), so a vertex's record may come several times, once per exporting patch, in
+//   any order. Copies agree on everything but the carried best, which some may lack;
+//   the gather keeps the first copy with a known best (two known ones are equal).
+//   Nothing else depends on arrival order.
+// - Checks for tests and diagnosis (environment, read once per process; off: no cost):
+//   QEMFLOW_VERIFY_CARRIED=1: every restored best is recomputed in full and must be
+//     bit-equal (decimator.hpp), and all copies of a repeated vertex record a gather
+//     reads must agree as above; otherwise Error(internal) / a
+//     logic_error naming the gid (exit 1).
+//   QEMFLOW_FUZZ_ORDER=SEED: each gather reads its frames, and the first state holds its
+//     chunks, in a seeded pseudo-random order (what the I/O's timing may do), and each
+//     patch build drops a seeded third of the carried bests (as a copy without one
+//     would). The output must not change.
 #include <array>
 #include <cstdint>
 #include <filesystem>
@@ -136,7 +150,9 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 
 // Bytes per gathered face of a patch while it is gathered and decimated, and per face of
 // the in-core finish; the budget rules use them. A patch peaks while the gathered state
-// (face record 40 B + vertex records ~68 B per face), the BFS arrays and the built
+// (face record 40 B + vertex records ~68 B per face: one per gid, however many chunks
+// hold it, for the first state of an input in random face order holds ~2.8 records per
+// face), the BFS arrays and the built
 // PatchInput (~88 B) are alive together: measured on 1M faces at 96M (VmHWM reset per
 // phase, above the RSS before the gather, with 120-byte records and no carried bests),
 // the gather peaks at 132-237 B and the build at 188-274 B per gathered face; the
