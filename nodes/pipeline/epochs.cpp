@@ -508,20 +508,40 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
       [&](const FrameHeader& header, Bytes& records, Lease&) {
         std::vector<engine::BlockFace> faces(header.count);
         engine::unpack_block_faces(records.data(), header.count, mesh.block_record_size, faces.data());
-        std::vector<std::pair<uint32_t, uint32_t>> by_owner(faces.size());  // (owner, index)
-        for (size_t i = 0; i < faces.size(); ++i) by_owner[i] = {partition.owner_of(faces[i]), uint32_t(i)};
+        // Each owner's faces in Morton order of their centroids (in the frame's box), as
+        // the export orders them: a chunk's runs (ChunkMeta::parts) are then spatially
+        // tight even when the input's faces come in random order (a frame then holds a
+        // random sample of its block), and a gather reads only the runs near a halo.
+        Box frame_box;
+        for (const auto& f : faces)
+          for (const Point& c : f.positions) frame_box.add(c);
+        struct Keyed {
+          uint32_t owner, code;
+          uint64_t fid;
+          uint32_t index;
+          bool operator<(const Keyed& o) const {
+            return std::tie(owner, code, fid) < std::tie(o.owner, o.code, o.fid);
+          }
+        };
+        std::vector<Keyed> by_owner(faces.size());
+        for (size_t i = 0; i < faces.size(); ++i) {
+          Point c{};
+          for (const Point& corner : faces[i].positions)
+            for (int k = 0; k < 3; ++k) c[k] += corner[k] / 3;
+          by_owner[i] = {partition.owner_of(faces[i]), morton(c, frame_box), faces[i].id, uint32_t(i)};
+        }
         std::sort(by_owner.begin(), by_owner.end());
         std::vector<Out> result;
         for (size_t first = 0; first < by_owner.size();) {
           size_t last = first;
-          while (last < by_owner.size() && by_owner[last].first == by_owner[first].first &&
+          while (last < by_owner.size() && by_owner[last].owner == by_owner[first].owner &&
                  last - first < chunk_faces)
             ++last;
           std::vector<FaceRecord> fr;
           std::vector<VertexRecord> vr;
           for (size_t i = first; i < last; ++i) {
-            const auto& f = faces[by_owner[i].second];
-            fr.push_back({f.id, f.vertices, by_owner[i].first, 0});
+            const auto& f = faces[by_owner[i].index];
+            fr.push_back({f.id, f.vertices, by_owner[i].owner, 0});
             for (int k = 0; k < 3; ++k) {
               VertexRecord r;
               r.gid = f.vertices[k];
@@ -530,12 +550,11 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
               vr.push_back(r);
             }
           }
-          std::sort(fr.begin(), fr.end(), [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
           std::sort(vr.begin(), vr.end(), [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
           vr.erase(std::unique(vr.begin(), vr.end(),
                                [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
                    vr.end());
-          result.push_back({meta_of(by_owner[first].first, fr, vr), make_blob(fr, vr)});
+          result.push_back({meta_of(by_owner[first].owner, fr, vr), make_blob(fr, vr)});
           first = last;
         }
         // Hand the results to the sink through the records buffer's slot index.
