@@ -747,7 +747,11 @@ struct RunCache {
   std::mutex mutex;
   std::unordered_map<size_t, std::array<Bytes, ChunkMeta::kParts>> runs;  // by chunk
   std::unordered_map<size_t, RunMask> held;                                // by chunk
-  int64_t room = 0;              // faces it may still take in this batch (under `mutex`)
+  // A cached run is a blob with its own vertex records, up to 3 per face when its faces
+  // share none (an input in random order): it is charged as that many lease faces.
+  static constexpr int64_t kCachedRunWeight =
+      (sizeof(FaceRecord) + 3 * sizeof(VertexRecord) + kPatchBytesPerFace - 1) / kPatchBytesPerFace;
+  int64_t room = 0;              // lease faces it may still take in this batch (under `mutex`)
   uint64_t faces = 0;            // faces it holds
 };
 
@@ -799,7 +803,7 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
   }
   if (g.over_limit) frames.clear();
   if (order_fuzz_seed()) shuffle(frames, order_fuzz_seed());
-  cache.room = int64_t(limit_faces) - int64_t(g.found_faces + asked_faces + cache.faces);
+  cache.room = int64_t(limit_faces) - int64_t(g.found_faces + asked_faces) - int64_t(RunCache::kCachedRunWeight * cache.faces);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
@@ -817,8 +821,8 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
           const RunMask unread = RunMask(~read[chunk] & ~(held == cache.held.end() ? 0 : held->second));
           for (size_t k = 0; k < ChunkMeta::kParts; ++k) {
             const int64_t faces = int64_t(run_faces(v.faces, k));
-            if ((unread >> k & 1u) && faces > 0 && cache.room >= faces) {
-              cache.room -= faces;
+            if ((unread >> k & 1u) && faces > 0 && cache.room >= RunCache::kCachedRunWeight * faces) {
+              cache.room -= RunCache::kCachedRunWeight * faces;
               to_cache |= RunMask(1u << k);
             }
           }
