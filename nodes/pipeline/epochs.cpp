@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <unordered_map>
 
 #include <oneapi/tbb/enumerable_thread_specific.h>
 #include <oneapi/tbb/parallel_for.h>
@@ -146,24 +147,9 @@ struct Box {
       if (b.max[k] < min[k] || b.min[k] > max[k]) return false;
     return true;
   }
-  // The L-infinity distance from the box (0 inside): the least margin whose grown box
-  // holds `p`.
-  double distance_to(const Point& p) const {
-    double d = 0;
-    for (int k = 0; k < 3; ++k) d = std::max({d, min[k] - p[k], p[k] - max[k]});
-    return d;
-  }
   static Box unbounded() {
     Box b;
     std::swap(b.min, b.max);
-    return b;
-  }
-  Box grown(double margin) const {
-    Box b = *this;
-    for (int k = 0; k < 3; ++k) {
-      b.min[k] -= margin;
-      b.max[k] += margin;
-    }
     return b;
   }
 };
@@ -177,17 +163,17 @@ struct ChunkMeta {
   Box box;
   // The boxes of the chunk's faces (their corners) in kParts runs of the chunk's order
   // (part_of): an export's chunk is in Morton order, so each run is a compact piece of
-  // surface where the whole chunk's box may span a fold or a Morton jump. The gather
-  // grows the owner's parts into the halo region and reads a chunk only when one of its
-  // parts meets it.
+  // surface where the whole chunk's box may span a fold or a Morton jump. A part's
+  // gather reads the runs whose boxes hold the vertices its BFS needs the fans of.
   static constexpr size_t kParts = 8;
   std::array<Box, kParts> parts;
   static size_t part_of(size_t face, size_t faces) { return face * kParts / faces; }
-  double edge_sum = 0;  // summed edge lengths of the chunk's faces (margin estimate)
   // Summed over the chunk's face corners, 1 / the vertex's degree: the state's chunks
   // sum to its distinct vertices (each face is in one chunk), where their vertex
   // records count a vertex once per chunk it is in.
   double vertex_share = 0;
+  // The id of the chunk's first face: tells its frame apart when read (read_runs).
+  uint64_t first_fid = 0;
 };
 
 struct Chunk {
@@ -297,10 +283,6 @@ class UniqueVertexRecords {
   size_t mask_ = 0;
 };
 
-double distance(const Point& a, const Point& b) {
-  return std::sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
-}
-
 // Builds a chunk blob from faces and the (gid-sorted, deduplicated) vertex records they use.
 Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
   Bytes blob(blob_bytes(faces.size(), vertices.size()));
@@ -322,12 +304,12 @@ ChunkMeta meta_of(uint32_t owner, const std::vector<FaceRecord>& faces, const st
   auto position = [&](uint64_t gid) -> const Point& {
     return vertices[size_t(std::lower_bound(gids.begin(), gids.end(), gid) - gids.begin())].position;
   };
+  if (!faces.empty()) m.first_fid = faces[0].fid;
   for (size_t j = 0; j < faces.size(); ++j) {
     const auto& f = faces[j];
     const Point& p0 = position(f.v[0]);
     const Point& p1 = position(f.v[1]);
     const Point& p2 = position(f.v[2]);
-    m.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
     Box& part = m.parts[ChunkMeta::part_of(j, faces.size())];
     for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
   }
@@ -446,6 +428,7 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
         ChunkMeta& meta = made[i].meta;
         meta.owner = owner;
         meta.faces = nf;
+        meta.first_fid = out.face_gids[order[first]];
         for (size_t j = 0; j < n; ++j) {
           const uint32_t f = order[first + j];
           const auto& t = out.faces[f];
@@ -453,7 +436,6 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           const Point& p0 = out.positions[t[0]];
           const Point& p1 = out.positions[t[1]];
           const Point& p2 = out.positions[t[2]];
-          meta.edge_sum += distance(p0, p1) + distance(p1, p2) + distance(p2, p0);
           for (uint32_t v : t) meta.vertex_share += 1.0 / double(std::max<uint32_t>(1, out.degrees[v]));
           Box& part = meta.parts[ChunkMeta::part_of(j, n)];
           for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
@@ -536,21 +518,41 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
       [&](const FrameHeader& header, Bytes& records, Lease&) {
         std::vector<engine::BlockFace> faces(header.count);
         engine::unpack_block_faces(records.data(), header.count, mesh.block_record_size, faces.data());
-        std::vector<std::pair<uint32_t, uint32_t>> by_owner(faces.size());  // (owner, index)
-        for (size_t i = 0; i < faces.size(); ++i) by_owner[i] = {partition.owner_of(faces[i]), uint32_t(i)};
+        // Each owner's faces in Morton order of their centroids (in the frame's box), as
+        // the export orders them: a chunk's runs (ChunkMeta::parts) are then spatially
+        // tight even when the input's faces come in random order (a frame then holds a
+        // random sample of its block), and a gather reads only the runs near a halo.
+        Box frame_box;
+        for (const auto& f : faces)
+          for (const Point& c : f.positions) frame_box.add(c);
+        struct Keyed {
+          uint32_t owner, code;
+          uint64_t fid;
+          uint32_t index;
+          bool operator<(const Keyed& o) const {
+            return std::tie(owner, code, fid) < std::tie(o.owner, o.code, o.fid);
+          }
+        };
+        std::vector<Keyed> by_owner(faces.size());
+        for (size_t i = 0; i < faces.size(); ++i) {
+          Point c{};
+          for (const Point& corner : faces[i].positions)
+            for (int k = 0; k < 3; ++k) c[k] += corner[k] / 3;
+          by_owner[i] = {partition.owner_of(faces[i]), morton(c, frame_box), faces[i].id, uint32_t(i)};
+        }
         std::sort(by_owner.begin(), by_owner.end());
         std::vector<Out> result;
         for (size_t first = 0; first < by_owner.size();) {
           size_t last = first;
-          while (last < by_owner.size() && by_owner[last].first == by_owner[first].first &&
+          while (last < by_owner.size() && by_owner[last].owner == by_owner[first].owner &&
                  last - first < chunk_faces)
             ++last;
           std::vector<FaceRecord> fr;
           std::vector<VertexRecord> vr;
           double vertex_share = 0;
           for (size_t i = first; i < last; ++i) {
-            const auto& f = faces[by_owner[i].second];
-            fr.push_back({f.id, f.vertices, by_owner[i].first, 0});
+            const auto& f = faces[by_owner[i].index];
+            fr.push_back({f.id, f.vertices, by_owner[i].owner, 0});
             for (int k = 0; k < 3; ++k) {
               vertex_share += 1.0 / double(std::max<uint32_t>(1, f.degree[k]));
               VertexRecord r;
@@ -560,12 +562,11 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
               vr.push_back(r);
             }
           }
-          std::sort(fr.begin(), fr.end(), [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
           std::sort(vr.begin(), vr.end(), [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
           vr.erase(std::unique(vr.begin(), vr.end(),
                                [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
                    vr.end());
-          result.push_back({meta_of(by_owner[first].first, fr, vr), make_blob(fr, vr)});
+          result.push_back({meta_of(by_owner[first].owner, fr, vr), make_blob(fr, vr)});
           result.back().meta.vertex_share = vertex_share;
           first = last;
         }
@@ -636,19 +637,10 @@ struct PatchPart {
   uint32_t owner = 0;
   bool whole = true;
   Box region;  // when not whole
-  // The halo box's margin in (rings + 2) mean edges; doubled when the BFS reached a
-  // vertex whose fan was not gathered. Per part, so one part's redo does not widen its
-  // siblings' gathers.
-  double margin_factor = 1.5;
-  // The farthest reach of a built halo (BuiltPatch::reach) in mean edges, and its ring
-  // count (0: none yet, or a margin redo since): the next gathers' margins start
-  // from it (Runner::part_margin).
-  int reach_rings = 0;
-  double reach_edges = 0;
 };
 
 // Face records the part does not own carry this owner, so "owner == p" means "owned by
-// this part" in build_patch.
+// this part" in PatchBfs.
 inline constexpr uint32_t kNotInPart = std::numeric_limits<uint32_t>::max();
 
 struct Gathered {
@@ -656,193 +648,284 @@ struct Gathered {
   // per gid either way (UniqueVertexRecords).
   std::vector<FaceRecord> faces;
   std::vector<VertexRecord> vertices;
-  uint64_t found_faces = 0;  // faces the gather kept (= faces.size() unless over_limit)
+  uint64_t found_faces = 0;  // faces the gather read (= faces.size() unless over_limit)
   uint64_t owned_faces = 0;  // of them, owned by the part
-  bool over_limit = false;   // more than the limit: nothing is held, found_faces is the need
+  bool over_limit = false;   // more than the limit: nothing is held, found_faces is what was found
 };
 
-// Where a part's halo can reach: each of its owner's chunk boxes (cut to the part's
-// region) grown by the margin. Much tighter than the owned box grown by the margin (an
-// owner's faces fill little of their box), so the gather reads and keeps fewer faces;
-// the BFS's margin check still catches a halo vertex outside it (margin redo). The
-// per-vertex test goes through a grid of cells marked where they meet a grown box (a
-// superset of the boxes' union).
-class HaloRegion {
- public:
-  static constexpr int kCells = 32;  // per axis
+// Which runs of a chunk (ChunkMeta::parts) a part's gather reads: bit k for run k.
+using RunMask = uint8_t;
+inline constexpr RunMask kAllRuns = 0xff;
+static_assert(ChunkMeta::kParts == 8);
+struct RunRead {
+  size_t chunk = 0;  // index into MeshState::chunks
+  RunMask runs = 0;
+};
 
-  HaloRegion() = default;
-  HaloRegion(std::vector<Box> grown_boxes) : boxes_(std::move(grown_boxes)) {
-    for (const Box& b : boxes_) bounds_.add(b);
-    if (bounds_.empty()) return;
+// Points bucketed in a grid over their bounds: "does this box hold one of them?"
+// without testing every point against every box.
+class PointGrid {
+ public:
+  explicit PointGrid(const std::vector<Point>& points) : points_(points) {
+    for (const Point& p : points_) bounds_.add(p);
+    cells_ = std::clamp(int(std::cbrt(double(points_.size()))), 1, 32);
     for (int k = 0; k < 3; ++k) {
       const double extent = bounds_.max[k] - bounds_.min[k];
-      scale_[k] = extent > 0 ? kCells / extent : 0.0;
+      scale_[k] = extent > 0 ? cells_ / extent : 0.0;
     }
-    cells_.assign(size_t(kCells) * kCells * kCells, 0);
-    for (const Box& b : boxes_) {
-      const auto lo = cell_of(b.min), hi = cell_of(b.max);
-      for (int x = lo[0]; x <= hi[0]; ++x)
-        for (int y = lo[1]; y <= hi[1]; ++y)
-          for (int z = lo[2]; z <= hi[2]; ++z) cells_[index(x, y, z)] = 1;
-    }
+    first_.assign(size_t(cells_) * cells_ * cells_ + 1, 0);
+    for (const Point& p : points_) ++first_[index(cell_of(p)) + 1];
+    for (size_t c = 1; c < first_.size(); ++c) first_[c] += first_[c - 1];
+    order_.resize(points_.size());
+    std::vector<uint32_t> at(first_.begin(), first_.end() - 1);
+    for (size_t i = 0; i < points_.size(); ++i) order_[at[index(cell_of(points_[i]))]++] = uint32_t(i);
   }
-
   const Box& bounds() const { return bounds_; }
-  bool meets(const Box& box) const {
-    if (!bounds_.meets(box)) return false;
-    for (const Box& b : boxes_)
-      if (b.meets(box)) return true;
+  bool any_inside(const Box& box) const {
+    if (box.empty() || !bounds_.meets(box)) return false;
+    const Box cut = box.intersected(bounds_);
+    const auto lo = cell_of(cut.min), hi = cell_of(cut.max);
+    for (int x = lo[0]; x <= hi[0]; ++x)
+      for (int y = lo[1]; y <= hi[1]; ++y)
+        for (int z = lo[2]; z <= hi[2]; ++z) {
+          const size_t c = index({x, y, z});
+          for (uint32_t i = first_[c]; i < first_[c + 1]; ++i)
+            if (box.contains(points_[order_[i]])) return true;
+        }
     return false;
-  }
-  bool contains(const Point& p) const {
-    if (!bounds_.contains(p)) return false;
-    const auto c = cell_of(p);
-    return cells_[index(c[0], c[1], c[2])];
   }
 
  private:
   std::array<int, 3> cell_of(const Point& p) const {
     std::array<int, 3> c;
-    for (int k = 0; k < 3; ++k)
-      c[k] = int(std::clamp((p[k] - bounds_.min[k]) * scale_[k], 0.0, double(kCells - 1)));
+    for (int k = 0; k < 3; ++k) c[k] = int(std::clamp((p[k] - bounds_.min[k]) * scale_[k], 0.0, double(cells_ - 1)));
     return c;
   }
-  static size_t index(int x, int y, int z) { return (size_t(x) * kCells + size_t(y)) * kCells + size_t(z); }
+  size_t index(const std::array<int, 3>& c) const { return (size_t(c[0]) * cells_ + size_t(c[1])) * cells_ + size_t(c[2]); }
 
-  std::vector<Box> boxes_;
+  const std::vector<Point>& points_;
   Box bounds_;
+  int cells_ = 1;
   std::array<double, 3> scale_{};
-  std::vector<uint8_t> cells_;
+  std::vector<uint32_t> first_, order_;
 };
 
-// The frames a gather reads (its owner's chunks that may hold owned faces, and every
-// chunk meeting the halo region), with upper bounds of what it holds (from the chunk
-// metas): the patch's lease is sized from most_faces before anything is read.
-struct GatherPlan {
-  std::vector<FrameRef> frames;
-  uint64_t most_faces = 0, most_blob_bytes = 0;
-  std::vector<Box> owned_boxes;  // the owner's chunk boxes cut to the part's region (not grown)
-  HaloRegion region;
-};
-
-// `part` null: every chunk (the in-core finish). `margin`: the halo's reach.
-GatherPlan plan_gather(const MeshState& state, const PatchPart* part, double margin) {
-  GatherPlan plan;
-  if (part) {
-    std::vector<Box> grown;
-    for (const auto& c : state.chunks) {
-      if (c.meta.owner != part->owner) continue;
-      for (const Box& b : c.meta.parts) {
-        const Box owned = part->whole ? b : b.intersected(part->region);
-        if (owned.empty()) continue;
-        plan.owned_boxes.push_back(owned);
-        grown.push_back(owned.grown(margin));
-      }
-    }
-    plan.region = HaloRegion(std::move(grown));
+// A part's first read: its owner's runs that may hold owned faces (all of them for a
+// whole owner; a run holds the centroids of its faces, so one that misses the region
+// owns nothing).
+std::vector<RunRead> owned_runs(const MeshState& state, const PatchPart& part) {
+  std::vector<RunRead> reads;
+  for (size_t i = 0; i < state.chunks.size(); ++i) {
+    const ChunkMeta& m = state.chunks[i].meta;
+    if (m.owner != part.owner) continue;
+    RunMask runs = 0;
+    for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+      if (!m.parts[k].empty() && (part.whole || m.parts[k].meets(part.region))) runs |= RunMask(1u << k);
+    if (runs) reads.push_back({i, runs});
   }
-  auto meets_region = [&](const ChunkMeta& m) {
-    if (!plan.region.meets(m.box)) return false;
-    for (const Box& b : m.parts)
-      if (!b.empty() && plan.region.meets(b)) return true;
-    return false;
-  };
-  for (const auto& c : state.chunks)
-    if (!part || (c.meta.owner == part->owner && part->whole) || meets_region(c.meta)) {
-      plan.frames.push_back(c.frame);
-      plan.most_faces += c.meta.faces;
-      plan.most_blob_bytes += c.frame.count;
-    }
-  if (const uint64_t seed = order_fuzz_seed()) shuffle(plan.frames, seed);
-  return plan;
+  return reads;
 }
 
-// Loads the part's owned faces and every other face with a vertex in the plan's region; with
-// `part` null, everything (the in-core finish). At most `limit_faces` are held: a
-// gather that finds more keeps counting but holds nothing (over_limit), so a patch
-// never materializes beyond its lease.
-Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan, const PatchPart* part,
-                         uint64_t limit_faces = std::numeric_limits<uint64_t>::max()) {
-  // Reserved up front at upper bounds: growth by doubling would hold the old and the new
-  // arrays at once (a spike outside the patch lease); untouched reserved pages cost no RSS.
-  Gathered g;
-  g.faces.reserve(std::min(plan.most_faces, limit_faces));
-  g.vertices.reserve(plan.most_blob_bytes / sizeof(VertexRecord) + 1);
-  UniqueVertexRecords unique_vertices(g.vertices);
+// The runs not read yet (`read`: per chunk) whose boxes hold one of `points`: every
+// face of a vertex is in a run whose box holds the vertex (a run's box holds its
+// faces' corners), so these are all the runs that can complete the points' fans.
+std::vector<RunRead> runs_holding(const MeshState& state, const std::vector<Point>& points,
+                                  const std::vector<RunMask>& read) {
+  std::vector<RunRead> reads;
+  const PointGrid grid(points);
+  for (size_t i = 0; i < state.chunks.size(); ++i) {
+    const ChunkMeta& m = state.chunks[i].meta;
+    if (read[i] == kAllRuns || !grid.bounds().meets(m.box)) continue;
+    RunMask runs = 0;
+    for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+      if (!(read[i] >> k & 1u) && grid.any_inside(m.parts[k])) runs |= RunMask(1u << k);
+    if (runs) reads.push_back({i, runs});
+  }
+  return reads;
+}
+
+// The faces of run k of a chunk of `faces` faces (ChunkMeta::part_of).
+uint64_t run_faces(uint64_t faces, size_t k) {
+  auto first = [&](size_t run) { return (run * faces + ChunkMeta::kParts - 1) / ChunkMeta::kParts; };
+  return first(k + 1) - first(k);
+}
+
+// The runs a gather decoded with a chunk's frame but had not asked for yet (not read,
+// not asked for in that batch), each a blob filtered as a read's: a later batch that
+// asks for them takes them from here, so no frame is read and decoded twice in a
+// gather. Opportunistic: it holds runs only within the patch lease's room (the faces
+// the lease covers that the gather has neither found nor asked for), so it changes
+// neither what the gather finds nor what it may hold.
+struct RunCache {
+  std::mutex mutex;
+  std::unordered_map<size_t, std::array<Bytes, ChunkMeta::kParts>> runs;  // by chunk
+  std::unordered_map<size_t, RunMask> held;                                // by chunk
+  // A cached run is a blob with its own vertex records, up to 3 per face when its faces
+  // share none (an input in random order): it is charged as that many lease faces.
+  static constexpr int64_t kCachedRunWeight =
+      (sizeof(FaceRecord) + 3 * sizeof(VertexRecord) + kPatchBytesPerFace - 1) / kPatchBytesPerFace;
+  int64_t room = 0;              // lease faces it may still take in this batch (under `mutex`)
+  uint64_t faces = 0;            // faces it holds
+};
+
+// Appends a filtered blob's faces and vertex records to `g` (or, once over the limit,
+// only counts them).
+void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, uint64_t limit_faces,
+                 UniqueVertexRecords& unique_vertices) {
+  g.found_faces += v.faces;
+  for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part.owner;
+  if (g.found_faces > limit_faces) g.over_limit = true;
+  if (g.over_limit) return;
+  g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
+  for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
+}
+
+// Reads the given runs of the given chunks (one batch of frames through the job's I/O
+// thread) and appends their faces, and the vertex records those use, to `g`; the owner's
+// faces outside the part's region get kNotInPart. Runs the cache holds are taken from
+// it instead; of a frame read, the runs not read before (`read`: per chunk, including
+// this batch's) go to the cache while it has room. Once `g` would hold more than
+// `limit_faces` faces it holds nothing (over_limit) and only counts.
+void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const std::vector<RunRead>& reads,
+               const std::vector<RunMask>& read, const PatchPart& part, Gathered& g, uint64_t limit_faces,
+               UniqueVertexRecords& unique_vertices, RunCache& cache) {
+  std::vector<FrameRef> frames;
+  // A chunk's frame is told apart by its first face id (faces are in one chunk each).
+  std::unordered_map<uint64_t, RunRead> runs_of;
+  uint64_t asked_faces = 0;
+  for (const RunRead& r : reads) {
+    const auto held = cache.held.find(r.chunk);
+    const RunMask cached = held == cache.held.end() ? 0 : RunMask(held->second & r.runs);
+    const ChunkMeta& m = state.chunks[r.chunk].meta;
+    for (size_t k = 0; k < ChunkMeta::kParts; ++k) {
+      if (!(cached >> k & 1u)) {
+        if (r.runs >> k & 1u) asked_faces += run_faces(m.faces, k);
+        continue;
+      }
+      Bytes& blob = cache.runs[r.chunk][k];
+      const BlobView v = view_blob(blob.data(), blob.size());
+      cache.faces -= v.faces;
+      gather_blob(v, part, g, limit_faces, unique_vertices);
+      release_memory(blob);
+    }
+    if (cached) held->second &= RunMask(~cached);
+    const RunMask rest = RunMask(r.runs & ~cached);
+    if (!rest) continue;
+    frames.push_back(state.chunks[r.chunk].frame);
+    runs_of.emplace(m.first_fid, RunRead{r.chunk, rest});
+  }
+  if (g.over_limit) frames.clear();
+  if (order_fuzz_seed()) shuffle(frames, order_fuzz_seed());
+  cache.room = int64_t(limit_faces) - int64_t(g.found_faces + asked_faces) - int64_t(RunCache::kCachedRunWeight * cache.faces);
   engine::for_each_frame(
-      job, scratch, "epochs", "state frames", plan.frames, 1,
+      job, scratch, "epochs", "state frames", frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
-        if (!part) return;
-        const bool owners = header.tag == part->owner;
-        if (owners && part->whole) return;
         const BlobView v = view_blob(records.data(), records.size());
-        // Per vertex: inside the box? (Another owner's chunk wholly inside is kept as it
-        // is.) Corners are found in a compact gid array, and the kept faces' vertices
-        // are marked. The owner's faces are owned when their centroid is in the region.
-        std::vector<uint8_t> inside(v.vertices), used(v.vertices, 0);
-        bool all_inside = true, any_inside = false;
-        for (uint64_t i = 0; i < v.vertices; ++i) {
-          inside[i] = plan.region.contains(v.vertex[i].position);
-          all_inside = all_inside && inside[i];
-          any_inside = any_inside || inside[i];
+        if (v.faces == 0) return;
+        const auto found = runs_of.find(v.face[0].fid);
+        if (found == runs_of.end()) throw Error(ErrorKind::internal, "state chunk not asked for");
+        const RunMask runs = found->second.runs;
+        const size_t chunk = found->second.chunk;
+        // The runs not read yet go to the cache, as many as its room takes.
+        RunMask to_cache = 0;
+        {
+          const std::lock_guard lock(cache.mutex);
+          const auto held = cache.held.find(chunk);
+          const RunMask unread = RunMask(~read[chunk] & ~(held == cache.held.end() ? 0 : held->second));
+          for (size_t k = 0; k < ChunkMeta::kParts; ++k) {
+            const int64_t faces = int64_t(run_faces(v.faces, k));
+            if ((unread >> k & 1u) && faces > 0 && cache.room >= RunCache::kCachedRunWeight * faces) {
+              cache.room -= RunCache::kCachedRunWeight * faces;
+              to_cache |= RunMask(1u << k);
+            }
+          }
         }
-        if (all_inside && !owners) return;
-        if (!any_inside && !owners) {  // most chunks the region's bounds meet
-          Bytes empty = make_blob({}, {});
-          records.swap(empty);
-          return;
-        }
+        const bool owners = header.tag == part.owner;
+        if (runs == kAllRuns && (!owners || part.whole)) return;  // kept as it is
         const GidTable table(v.vertices, [&](size_t i) { return v.vertex[i].gid; });
         auto index_of = [&](uint64_t gid) {
           const uint32_t i = table.find(gid);
           if (i == GidTable::kMissing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
           return size_t(i);
         };
-        std::vector<FaceRecord> kept;
-        for (uint64_t i = 0; i < v.faces; ++i) {
-          const FaceRecord& f = v.face[i];
+        // Per vertex: bit k, used by a face of run k.
+        std::vector<uint8_t> used(v.vertices, 0);
+        std::array<std::vector<FaceRecord>, ChunkMeta::kParts> kept;
+        const RunMask wanted = RunMask(runs | to_cache);
+        for (uint64_t j = 0; j < v.faces; ++j) {
+          const size_t k = ChunkMeta::part_of(j, v.faces);
+          if (!(wanted >> k & 1u)) continue;
+          const FaceRecord& f = v.face[j];
           const size_t a = index_of(f.v[0]), b = index_of(f.v[1]), c = index_of(f.v[2]);
-          bool owned = false;
-          if (owners) {
+          kept[k].push_back(f);
+          if (owners && !part.whole) {
             Point centroid{};
             for (size_t corner : {a, b, c})
-              for (int k = 0; k < 3; ++k) centroid[k] += v.vertex[corner].position[k];
-            for (int k = 0; k < 3; ++k) centroid[k] /= 3;
-            owned = part->region.contains_half_open(centroid);
+              for (int d = 0; d < 3; ++d) centroid[d] += v.vertex[corner].position[d];
+            for (int d = 0; d < 3; ++d) centroid[d] /= 3;
+            if (!part.region.contains_half_open(centroid)) kept[k].back().owner = kNotInPart;
           }
-          if (!owned && !(inside[a] || inside[b] || inside[c])) continue;
-          kept.push_back(f);
-          if (!owned) kept.back().owner = kNotInPart;
-          used[a] = used[b] = used[c] = 1;
+          used[a] |= RunMask(1u << k);
+          used[b] |= RunMask(1u << k);
+          used[c] |= RunMask(1u << k);
         }
-        std::vector<VertexRecord> verts;
-        for (uint64_t i = 0; i < v.vertices; ++i)
-          if (used[i]) verts.push_back(v.vertex[i]);
-        Bytes blob = make_blob(kept, verts);
+        // The asked runs as one blob (replacing the records), each cached run as its own.
+        auto blob_of = [&](RunMask mask) {
+          std::vector<FaceRecord> faces;
+          for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+            if (mask >> k & 1u) faces.insert(faces.end(), kept[k].begin(), kept[k].end());
+          std::vector<VertexRecord> verts;
+          for (uint64_t i = 0; i < v.vertices; ++i)
+            if (used[i] & mask) verts.push_back(v.vertex[i]);
+          return make_blob(faces, verts);
+        };
+        std::array<Bytes, ChunkMeta::kParts> cached;
+        for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+          if (to_cache >> k & 1u) cached[k] = blob_of(RunMask(1u << k));
+        Bytes blob = blob_of(runs);
         records.swap(blob);
+        if (!to_cache) return;
+        const std::lock_guard lock(cache.mutex);
+        auto& slots = cache.runs[chunk];
+        for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+          if (to_cache >> k & 1u) {
+            slots[k].swap(cached[k]);
+            cache.faces += kept[k].size();
+          }
+        cache.held[chunk] |= to_cache;
       },
       [&](const FrameHeader&, Bytes& records, Lease&) {
-        const BlobView v = view_blob(records.data(), records.size());
-        g.found_faces += v.faces;
-        if (part)
-          for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part->owner;
-        if (g.found_faces > limit_faces) g.over_limit = true;
-        if (g.over_limit) return;
-        g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
-        for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
+        gather_blob(view_blob(records.data(), records.size()), part, g, limit_faces, unique_vertices);
       },
       0);
   if (g.over_limit) {
     release_memory(g.faces);
     release_memory(g.vertices);
-    return g;
   }
-  // A patch's arrays stay as read (build_patch dedups the vertices and orders only what
-  // it selects); the finish's are sorted here. Keys are unique (face ids; a gid's
-  // records are equal copies), so a parallel sort gives the same arrays. In the job's
-  // arena: --threads holds here too.
-  if (part) return g;
+}
+
+// Loads the whole state, sorted by fid / by gid and unique (the in-core finish).
+Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
+  // Reserved up front at upper bounds: growth by doubling would hold the old and the new
+  // arrays at once (a spike outside the lease); untouched reserved pages cost no RSS.
+  Gathered g;
+  std::vector<FrameRef> frames;
+  for (const auto& c : state.chunks) frames.push_back(c.frame);
+  g.faces.reserve(state.faces);
+  g.vertices.reserve(state.blob_bytes_total / sizeof(VertexRecord) + 1);
+  UniqueVertexRecords unique_vertices(g.vertices);
+  if (order_fuzz_seed()) shuffle(frames, order_fuzz_seed());
+  engine::for_each_frame(
+      job, scratch, "epochs", "state frames", frames, 1, nullptr,
+      [&](const FrameHeader&, Bytes& records, Lease&) {
+        const BlobView v = view_blob(records.data(), records.size());
+        g.found_faces += v.faces;
+        g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
+        for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
+      },
+      0);
+  // Keys are unique (face ids; one record per gid), so a parallel sort
+  // gives the same arrays. In the job's arena: --threads holds here too.
   job.arena().execute([&] {
     tbb::parallel_sort(g.faces.begin(), g.faces.end(),
                        [](const FaceRecord& a, const FaceRecord& b) { return a.fid < b.fid; });
@@ -852,182 +935,280 @@ Gathered load_candidates(Job& job, ScratchStore& scratch, const GatherPlan& plan
   return g;
 }
 
-struct BuiltPatch {
-  PatchInput input;
-  bool margin_too_small = false;
-  // The halo's reach: the largest distance (Box::distance_to) from the owned boxes of a
-  // vertex the BFS expanded, i.e. the least gather margin that holds this patch.
-  double reach = 0;
-};
-
-// Owned faces + `rings` rings of halo by BFS; flags as decimator.hpp asks. The
-// gathered arrays are in read order (which follows the I/O's timing), one vertex
-// record per gid (UniqueVertexRecords kept the one with a known carried best, so the
-// patch does not depend on the read order), and only the selection is put in gid / fid order (sorting
-// 16-byte keys of what the patch keeps, not the gathered 40- and 120-byte records).
-// `carry_bests`: the records' carried best edges are valid for the pass (PatchInput::best_gids).
-BuiltPatch build_patch(const Gathered& g, uint32_t p, int rings, bool whole, bool carry_bests,
-                       const std::vector<Box>& owned_boxes) {
-  BuiltPatch out;
-  const size_t nv = g.vertices.size(), nf = g.faces.size();
-  const VertexRecord* vb = g.vertices.data();
-  // Corner → local vertex through a gid table, in parallel.
-  std::optional<GidTable> table(std::in_place, nv, [vb](size_t v) { return vb[v].gid; });
-  std::vector<std::array<uint32_t, 3>> local(nf);
-  std::atomic<bool> missing = false;
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t f = range.begin(); f < range.end(); ++f)
-      for (int k = 0; k < 3; ++k) {
-        const uint32_t v = table->find(g.faces[f].v[k]);
-        if (v == GidTable::kMissing) {
-          missing = true;
-          continue;
-        }
-        local[f][k] = v;
-      }
-  });
-  if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
-  table.reset();
-  std::vector<uint32_t> count(nv + 1, 0);
-  for (size_t f = 0; f < nf; ++f)
-    for (uint32_t v : local[f]) ++count[v + 1];
-  for (size_t v = 0; v < nv; ++v) count[v + 1] += count[v];
-  std::vector<uint32_t> fan(count[nv]);
-  {
-    std::vector<uint32_t> at(count.begin(), count.end() - 1);
-    for (size_t f = 0; f < nf; ++f)
-      for (uint32_t v : local[f]) fan[at[v]++] = uint32_t(f);
+// Appends a vertex record's fields to a PatchInput's per-vertex arrays (quadrics and
+// locks when the state has them, carried bests when they are valid). `fuzz` (nonzero
+// under QEMFLOW_FUZZ_ORDER, a salt per build): a third of the bests are given as a
+// copy without one would give them.
+void append_vertex(PatchInput& in, const VertexRecord& r, bool quadrics, bool bests, uint64_t fuzz) {
+  in.vertex_gids.push_back(r.gid);
+  in.positions.push_back(r.position);
+  if (quadrics) {
+    in.quadrics.push_back(r.quadric);
+    in.locked.push_back(r.locked);
   }
-  // The BFS selects sets (the order of fans does not matter).
-  std::vector<uint8_t> fsel(nf, 0), vsel(nv, 0);
-  std::vector<uint32_t> frontier, next;
-  for (size_t f = 0; f < nf; ++f)
-    if (whole || g.faces[f].owner == p) {
-      fsel[f] = 1;
-      for (uint32_t v : local[f])
-        if (!vsel[v]) {
-          vsel[v] = 1;
-          frontier.push_back(v);
-        }
-    }
-  // Only a vertex farther than the reach so far needs its nearest box: the box that
-  // held or was nearest to the last one usually holds the next (BFS neighbours), and a
-  // scan stops at any box within the reach.
-  size_t near = 0;
-  auto reach_of = [&](const Point& x) {
-    if (owned_boxes.empty()) return 0.0;
-    double d = owned_boxes[near].distance_to(x);
-    for (size_t b = 0; b < owned_boxes.size() && d > out.reach; ++b) {
-      const double db = owned_boxes[b].distance_to(x);
-      if (db < d) {
-        d = db;
-        near = b;
-      }
-    }
-    return d;
-  };
-  for (int r = 0; r < rings && !whole; ++r) {
-    next.clear();
-    for (uint32_t v : frontier) {
-      out.reach = std::max(out.reach, reach_of(vb[v].position));
-      if (count[v + 1] - count[v] < vb[v].degree) {
-        out.margin_too_small = true;
-        return out;
-      }
-      for (uint32_t i = count[v]; i < count[v + 1]; ++i) {
-        const uint32_t f = fan[i];
-        if (fsel[f]) continue;
-        fsel[f] = 1;
-        for (uint32_t u : local[f])
-          if (!vsel[u]) {
-            vsel[u] = 1;
-            next.push_back(u);
-          }
-      }
-    }
-    frontier.swap(next);
+  if (bests) {
+    const bool dropped = fuzz && mix64(r.gid ^ fuzz) % 3 == 0;
+    in.best_gids.push_back(dropped ? kBestUnknown : r.best_gid);
+    in.best_costs.push_back(dropped ? 0.0 : r.best_cost);
   }
-  release_memory(frontier);
-  release_memory(next);
-  // The selection in gid order (vertices) and fid order (faces): (key, index) pairs.
-  std::vector<std::pair<uint64_t, uint32_t>> vorder, forder;
-  vorder.reserve(size_t(std::count(vsel.begin(), vsel.end(), uint8_t(1))));
-  for (size_t v = 0; v < nv; ++v)
-    if (vsel[v]) vorder.push_back({vb[v].gid, uint32_t(v)});
-  tbb::parallel_sort(vorder.begin(), vorder.end());
-  const size_t kept_v = vorder.size();
-  PatchInput& in = out.input;
-  std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
-  const bool given_quadrics = nv > 0 && vb[0].has_quadric;
-  const bool carried = given_quadrics && carry_bests;
-  const uint64_t fuzz = order_fuzz_seed() ? next_fuzz_salt() : 0;
-  // Exact sizes (no growth spikes).
-  in.vertex_gids.reserve(kept_v);
-  in.positions.reserve(kept_v);
-  if (given_quadrics) {
-    in.quadrics.reserve(kept_v);
-    in.locked.reserve(kept_v);
-  }
-  if (!whole) {
-    in.incomplete.reserve(kept_v);
-    in.owned_vertex.reserve(kept_v);
-  }
-  if (carried) {
-    in.best_gids.reserve(kept_v);
-    in.best_costs.reserve(kept_v);
-  }
-  for (const auto& [gid, v] : vorder) {
-    new_index[v] = uint32_t(in.vertex_gids.size());
-    in.vertex_gids.push_back(gid);
-    in.positions.push_back(vb[v].position);
-    if (given_quadrics) {
-      in.quadrics.push_back(vb[v].quadric);
-      in.locked.push_back(vb[v].locked);
-    }
-    if (carried) {
-      // QEMFLOW_FUZZ_ORDER: a third of the bests as a copy without one would give them.
-      const bool dropped = fuzz && mix64(gid ^ fuzz) % 3 == 0;
-      in.best_gids.push_back(dropped ? kBestUnknown : vb[v].best_gid);
-      in.best_costs.push_back(dropped ? 0.0 : vb[v].best_cost);
-    }
-    if (!whole) {
-      uint32_t inside = 0;
-      uint64_t smallest = std::numeric_limits<uint64_t>::max();
-      uint32_t owner = 0;
-      for (uint32_t i = count[v]; i < count[v + 1]; ++i)
-        if (fsel[fan[i]]) {
-          ++inside;
-          if (g.faces[fan[i]].fid < smallest) {
-            smallest = g.faces[fan[i]].fid;
-            owner = g.faces[fan[i]].owner;
-          }
-        }
-      const bool incomplete = inside < vb[v].degree;
-      in.incomplete.push_back(incomplete);
-      in.owned_vertex.push_back(!incomplete && owner == p);
-    }
-  }
-  release_memory(vorder);
-  release_memory(fan);
-  release_memory(count);
-  forder.reserve(size_t(std::count(fsel.begin(), fsel.end(), uint8_t(1))));
-  for (size_t f = 0; f < nf; ++f)
-    if (fsel[f]) forder.push_back({g.faces[f].fid, uint32_t(f)});
-  tbb::parallel_sort(forder.begin(), forder.end());
-  const size_t kept_f = forder.size();
-  in.faces.reserve(kept_f);
-  in.face_gids.reserve(kept_f);
-  if (!whole) in.owned_face.reserve(kept_f);
-  for (const auto& [fid, f] : forder) {
-    in.faces.push_back({new_index[local[f][0]], new_index[local[f][1]], new_index[local[f][2]]});
-    in.face_gids.push_back(fid);
-    if (!whole) in.owned_face.push_back(g.faces[f].owner == p);
-  }
-  return out;
 }
 
+uint64_t fuzz_salt() { return order_fuzz_seed() ? next_fuzz_salt() : 0; }
+
+// gid → dense id (0, 1, 2, ... in first-insert order), by open addressing that grows
+// as ids are added: the gather's index gains vertex records batch by batch.
+class GrowingGidMap {
+ public:
+  static constexpr uint32_t kMissing = std::numeric_limits<uint32_t>::max();
+  uint32_t size() const { return size_; }
+  // The gid's id, added as the next one if new (`added`).
+  uint32_t insert(uint64_t gid, bool& added) {
+    if (2 * (size_t(size_) + 1) > slots_.size()) grow();
+    size_t at = slot_of(gid);
+    while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
+    added = slots_[at].second == kMissing;
+    if (added) slots_[at] = {gid, size_++};
+    return slots_[at].second;
+  }
+  uint32_t find(uint64_t gid) const {
+    if (slots_.empty()) return kMissing;
+    size_t at = slot_of(gid);
+    while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
+    return slots_[at].second;
+  }
+  void release() {
+    release_memory(slots_);
+    size_ = 0;
+  }
+
+ private:
+  size_t slot_of(uint64_t gid) const { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift_); }
+  void grow() {
+    std::vector<std::pair<uint64_t, uint32_t>> old;
+    old.swap(slots_);
+    const size_t slots = std::max<size_t>(1024, 2 * old.size());
+    shift_ = 64 - std::countr_zero(slots);
+    mask_ = slots - 1;
+    slots_.assign(slots, {0, kMissing});
+    for (const auto& [gid, id] : old)
+      if (id != kMissing) {
+        size_t at = slot_of(gid);
+        while (slots_[at].second != kMissing) at = (at + 1) & mask_;
+        slots_[at] = {gid, id};
+      }
+  }
+  int shift_ = 0;
+  size_t mask_ = 0;
+  uint32_t size_ = 0;
+  std::vector<std::pair<uint64_t, uint32_t>> slots_;
+};
+
+// A part's halo BFS over what its gather read so far, kept across the gather's read
+// batches: each batch's faces and vertex records are indexed once (add), and the BFS
+// goes on from where it stopped (run) instead of starting over: the vertices it had
+// to expand but whose fans were not whole (loaded faces < degree; blocked) start it
+// again, at their rings. A vertex's ring can drop once such a vertex is expanded; it
+// is expanded again then, so the rings end as a fresh BFS's over the same faces, and
+// a pass blocks at the vertices a fresh BFS would (the reads, and the patch, are the
+// same). Owned faces are all in the first batch (owned_runs).
+//
+// The gather keeps one record per gid (UniqueVertexRecords: the first copy with a
+// known carried best, else the first read), so the patch does not depend on the read
+// order; a record it replaces keeps its index.
+class PatchBfs {
+ public:
+  PatchBfs(uint32_t owner, int rings, uint64_t limit_faces) : owner_(owner), rings_(rings), pending_(rings + 1) {
+    if (rings >= kUnreached) throw Error(ErrorKind::internal, "halo rings beyond the BFS's ring type");
+    // Reserved at upper bounds (a face brings at most 3 vertex records): no growth spikes.
+    local_.reserve(limit_faces);
+    face_ring_.reserve(limit_faces);
+    next_.reserve(3 * limit_faces);
+    record_.reserve(3 * limit_faces);
+    head_.reserve(3 * limit_faces);
+    loaded_.reserve(3 * limit_faces);
+    ring_.reserve(3 * limit_faces);
+  }
+
+  // Indexes the records `g` gained since the last call (read order).
+  void add(const Gathered& g) {
+    const VertexRecord* vb = g.vertices.data();
+    for (size_t i = indexed_vertices_; i < g.vertices.size(); ++i) {
+      bool added = false;
+      ids_.insert(vb[i].gid, added);  // a new gid but for a record replaced in place
+      if (added) {
+        record_.push_back(uint32_t(i));
+        head_.push_back(kNone);
+        loaded_.push_back(0);
+        ring_.push_back(kUnreached);
+      }
+    }
+    indexed_vertices_ = g.vertices.size();
+    const size_t first = local_.size(), nf = g.faces.size();
+    local_.resize(nf);
+    std::atomic<bool> missing = false;
+    tbb::parallel_for(tbb::blocked_range<size_t>(first, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t f = range.begin(); f < range.end(); ++f)
+        for (int k = 0; k < 3; ++k) {
+          const uint32_t v = ids_.find(g.faces[f].v[k]);
+          if (v == GrowingGidMap::kMissing) {
+            missing = true;
+            continue;
+          }
+          local_[f][k] = v;
+        }
+    });
+    if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+    next_.resize(3 * nf);
+    face_ring_.resize(nf, kUnreached);
+    for (size_t f = first; f < nf; ++f)
+      for (int k = 0; k < 3; ++k) {
+        const uint32_t v = local_[f][k];
+        next_[3 * f + k] = head_[v];
+        head_[v] = uint32_t(3 * f + k);
+        ++loaded_[v];
+      }
+    // The owned faces seed the BFS (ring 0: their corners).
+    for (size_t f = first; f < nf; ++f)
+      if (g.faces[f].owner == owner_) {
+        face_ring_[f] = 0;
+        for (uint32_t v : local_[f]) reach(v, 0);
+      }
+    // The vertices that blocked the last run: their fans may be whole now.
+    for (uint32_t v : blocked_) pending_[ring_[v]].push_back(v);
+    blocked_.clear();
+  }
+
+  // Goes on with the BFS over what was added; the positions of the vertices where it
+  // is blocked (none: the halo is complete, build() may follow).
+  std::vector<Point> run(const Gathered& g) {
+    const VertexRecord* vb = g.vertices.data();
+    for (int r = 0; r < rings_; ++r) {
+      std::vector<uint32_t> level;
+      level.swap(pending_[r]);
+      for (uint32_t v : level) {
+        if (ring_[v] != r) continue;  // reached at a smaller ring since
+        if (loaded_[v] < vb[record_[v]].degree) {
+          blocked_.push_back(v);
+          continue;
+        }
+        // Faces reached from ring r: their corners are within r + 1. A face reached
+        // from a smaller ring already gave its corners that.
+        for (uint32_t e = head_[v]; e != kNone; e = next_[e]) {
+          const uint32_t f = e / 3;
+          if (face_ring_[f] <= r + 1) continue;
+          face_ring_[f] = uint8_t(r + 1);
+          for (uint32_t u : local_[f]) reach(u, r + 1);
+        }
+      }
+    }
+    // A vertex reached at a smaller ring while blocked is listed twice.
+    std::sort(blocked_.begin(), blocked_.end());
+    blocked_.erase(std::unique(blocked_.begin(), blocked_.end()), blocked_.end());
+    std::vector<Point> positions;
+    positions.reserve(blocked_.size());
+    for (uint32_t v : blocked_) positions.push_back(vb[record_[v]].position);
+    return positions;
+  }
+
+  // The patch: the faces the BFS reached (owned + `rings` rings) and their corners, in
+  // fid / gid order; flags as decimator.hpp asks. Consumes the index.
+  PatchInput build(const Gathered& g, bool carry_bests) {
+    const VertexRecord* vb = g.vertices.data();
+    ids_.release();
+    release_memory(next_);
+    release_memory(head_);
+    // The selection in fid order (faces) and gid order (vertices): (key, index) pairs.
+    std::vector<std::pair<uint64_t, uint32_t>> forder;
+    const size_t nf = local_.size(), nv = record_.size();
+    forder.reserve(size_t(nf - std::count(face_ring_.begin(), face_ring_.end(), kUnreached)));
+    for (size_t f = 0; f < nf; ++f)
+      if (face_ring_[f] != kUnreached) forder.push_back({g.faces[f].fid, uint32_t(f)});
+    release_memory(face_ring_);
+    tbb::parallel_sort(forder.begin(), forder.end());
+    // Per vertex: its faces in the patch, and whether the one of smallest fid is owned.
+    std::vector<uint32_t> inside(nv, 0);
+    std::vector<uint8_t> first_owned(nv, 0);
+    for (const auto& [fid, f] : forder)
+      for (uint32_t v : local_[f])
+        if (inside[v]++ == 0) first_owned[v] = g.faces[f].owner == owner_;
+    std::vector<std::pair<uint64_t, uint32_t>> vorder;
+    vorder.reserve(size_t(nv - std::count(inside.begin(), inside.end(), 0u)));
+    for (size_t v = 0; v < nv; ++v)
+      if (inside[v]) vorder.push_back({vb[record_[v]].gid, uint32_t(v)});
+    tbb::parallel_sort(vorder.begin(), vorder.end());
+    const size_t kept_v = vorder.size();
+    PatchInput in;
+    std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
+    const bool given_quadrics = nv > 0 && vb[0].has_quadric;
+    const bool carried = given_quadrics && carry_bests;
+    const uint64_t fuzz = fuzz_salt();
+    // Exact sizes (no growth spikes).
+    in.vertex_gids.reserve(kept_v);
+    in.positions.reserve(kept_v);
+    if (given_quadrics) {
+      in.quadrics.reserve(kept_v);
+      in.locked.reserve(kept_v);
+    }
+    in.incomplete.reserve(kept_v);
+    in.owned_vertex.reserve(kept_v);
+    if (carried) {
+      in.best_gids.reserve(kept_v);
+      in.best_costs.reserve(kept_v);
+    }
+    for (const auto& [gid, v] : vorder) {
+      const VertexRecord& r = vb[record_[v]];
+      new_index[v] = uint32_t(in.vertex_gids.size());
+      append_vertex(in, r, given_quadrics, carried, fuzz);
+      const bool incomplete = inside[v] < r.degree;
+      in.incomplete.push_back(incomplete);
+      in.owned_vertex.push_back(!incomplete && first_owned[v]);
+    }
+    release_memory(vorder);
+    release_memory(inside);
+    release_memory(first_owned);
+    const size_t kept_f = forder.size();
+    in.faces.reserve(kept_f);
+    in.face_gids.reserve(kept_f);
+    in.owned_face.reserve(kept_f);
+    for (const auto& [fid, f] : forder) {
+      in.faces.push_back({new_index[local_[f][0]], new_index[local_[f][1]], new_index[local_[f][2]]});
+      in.face_gids.push_back(fid);
+      in.owned_face.push_back(g.faces[f].owner == owner_);
+    }
+    release_memory(local_);
+    release_memory(record_);
+    release_memory(loaded_);
+    release_memory(ring_);
+    return in;
+  }
+
+ private:
+  static constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
+  static constexpr uint8_t kUnreached = std::numeric_limits<uint8_t>::max();
+  // Vertex v is within `ring` rings: it is expanded there if that is inside the halo.
+  void reach(uint32_t v, int ring) {
+    if (ring_[v] <= ring) return;
+    ring_[v] = uint8_t(ring);
+    if (ring < rings_) pending_[ring].push_back(v);
+  }
+
+  uint32_t owner_;
+  int rings_;
+  GrowingGidMap ids_;                          // gid → vertex
+  size_t indexed_vertices_ = 0;                // records indexed so far
+  std::vector<uint32_t> record_;               // vertex → the record standing for it
+  std::vector<std::array<uint32_t, 3>> local_; // face → its corners' vertices
+  // Fans as lists through the faces' corners: head_[v] → 3 f + k → next_[3 f + k] ...
+  std::vector<uint32_t> head_, next_, loaded_;
+  std::vector<uint8_t> ring_;                  // per vertex: its ring (kUnreached: none)
+  // Per face: the ring of its corners it was reached for (0: owned; kUnreached: none).
+  std::vector<uint8_t> face_ring_;
+  std::vector<std::vector<uint32_t>> pending_; // per ring: vertices to expand
+  std::vector<uint32_t> blocked_;              // expanded vertices whose fans were not whole
+};
+
 // The finish's patch: the whole gathered state as one PatchInput (everything owned,
-// nothing incomplete). Unlike build_patch it needs no fans or BFS. The records are
+// nothing incomplete). Unlike a part's (PatchBfs) it needs no fans or BFS. The records are
 // copied block by block, vertices first (the faces need their gids: local index = rank
 // among the sorted, unique gids), and each copied block's pages go back to the OS at
 // once (engine::release_pages), so the records and the input's arrays are never both
@@ -1042,6 +1223,7 @@ PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   const size_t nv = g.vertices.size(), nf = g.faces.size();
   const bool given_quadrics = nv > 0 && g.vertices[0].has_quadric;
   const bool bests = given_quadrics && carry_bests;
+  const uint64_t fuzz = fuzz_salt();
   in.vertex_gids.reserve(nv);
   in.positions.reserve(nv);
   if (given_quadrics) {
@@ -1056,17 +1238,7 @@ PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   for (size_t begin = 0; begin < nv; begin += kVertexBlock) {
     const size_t end = std::min(nv, begin + kVertexBlock);
     for (size_t v = begin; v < end; ++v) {
-      const VertexRecord& r = g.vertices[v];
-      in.vertex_gids.push_back(r.gid);
-      in.positions.push_back(r.position);
-      if (given_quadrics) {
-        in.locked.push_back(r.locked);
-        in.quadrics.push_back(r.quadric);
-      }
-      if (bests) {
-        in.best_gids.push_back(r.best_gid);
-        in.best_costs.push_back(r.best_cost);
-      }
+      append_vertex(in, g.vertices[v], given_quadrics, bests, fuzz);
     }
     released = engine::release_pages(released, g.vertices.data() + end);
   }
@@ -1147,16 +1319,11 @@ struct Runner {
   void index_state(const MeshState& state) {
     bytes_per_face = patch_bytes_per_face(state.faces, state.vertices());
     owner_box.assign(patches, Box{});
-    std::vector<double> edge_sum(patches, 0.0);
     owner_faces.assign(patches, 0);
     for (const auto& c : state.chunks) {
       owner_box[c.meta.owner].add(c.meta.box);
-      edge_sum[c.meta.owner] += c.meta.edge_sum;
       owner_faces[c.meta.owner] += c.meta.faces;
     }
-    owner_edge.assign(patches, 0.0);
-    for (uint32_t p = 0; p < patches; ++p)
-      owner_edge[p] = owner_faces[p] ? edge_sum[p] / double(3 * owner_faces[p]) : 0.0;
     owner_parts.resize(patches);
     for (uint32_t p = 0; p < patches; ++p)
       if (owner_parts[p].empty()) owner_parts[p].push_back({p});
@@ -1167,32 +1334,56 @@ struct Runner {
   // this one is held: no hold-and-wait on the whole budget).
   uint64_t patch_cap() const { return job.capacity() / 4 * 3; }
 
-  // Where the part's owned faces are: the owner's box, cut to the region. (A vertex of
-  // an owned face may lie outside it, by less than an edge: the halo margin covers it,
-  // and build_patch's margin check catches a margin too small.)
+  // Where the part's owned faces are: the owner's box, cut to the region.
   Box owned_box(const PatchPart& part) const {
     return part.whole ? owner_box[part.owner] : owner_box[part.owner].intersected(part.region);
   }
 
-  // A part's gather margin: the margin factor's, or tighter once a built halo measured
-  // the part's reach (PatchPart::reach_edges at reach_rings): the same reach with
-  // kReachSlack to spare, plus margin_factor mean edges per ring beyond reach_rings.
-  // The mesh coarsens evenly between passes, so a reach in mean edges holds on the
-  // meshes seen; a margin too small costs a margin redo (the BFS's check, after which
-  // the factor's margin applies), never a different patch.
-  static constexpr double kReachSlack = 1.2;
-  double part_margin(const PatchPart& part, int rings) const {
-    const double edge = owner_edge[part.owner];
-    const double by_factor = (rings + 2) * edge * part.margin_factor;
-    if (part.reach_rings <= 0) return by_factor;
-    const double beyond = std::max(0, rings - part.reach_rings) * part.margin_factor;
-    return std::min(by_factor, (part.reach_edges * kReachSlack + beyond + 1) * edge);
+  // Gathers a part's patch and builds it: the runs that may hold owned faces, then,
+  // while the BFS is blocked at vertices whose fans were not read, the runs that hold
+  // those vertices (one batch of reads per stop; each run is read at most once). The
+  // BFS goes on over each batch (PatchBfs) rather than starting over. What is read
+  // changes, never the patch. Holds at most `limit_faces` gathered faces (over that:
+  // `g.over_limit`, nothing held, no patch: nullopt).
+  std::optional<PatchInput> gather_and_build(const MeshState& state, const PatchPart& part, int rings,
+                                             uint64_t limit_faces, Gathered& g, PhaseClock& clock) {
+    // Reserved up front at upper bounds (a face brings at most 3 vertex records):
+    // growth by doubling would hold the old and the new arrays at once (a spike outside
+    // the patch lease); untouched reserved pages cost no RSS.
+    g.faces.reserve(limit_faces);
+    g.vertices.reserve(3 * limit_faces);
+    UniqueVertexRecords unique_vertices(g.vertices);
+    std::vector<RunMask> read(state.chunks.size(), 0);
+    std::vector<RunRead> reads = owned_runs(state, part);
+    PatchBfs bfs(part.owner, rings, limit_faces);
+    RunCache cache;
+    for (;;) {
+      for (const RunRead& r : reads) read[r.chunk] |= r.runs;
+      read_runs(job, scratch, state, reads, read, part, g, limit_faces, unique_vertices, cache);
+      ++stats.gather_reads;
+      clock.charge(kGather);
+      if (g.over_limit || g.owned_faces == 0) return std::nullopt;
+      std::vector<Point> blocked;
+      job.arena().execute([&] {
+        bfs.add(g);
+        blocked = bfs.run(g);
+      });
+      clock.charge(kBuild);
+      if (blocked.empty()) {
+        cache.runs.clear();  // runs no batch asked for (none when the room was short)
+        std::optional<PatchInput> input;
+        job.arena().execute([&] { input = bfs.build(g, carry_bests); });
+        clock.charge(kBuild);
+        return input;
+      }
+      reads = runs_holding(state, blocked, read);
+      if (reads.empty()) throw Error(ErrorKind::internal, "a vertex's faces are not in the mesh state");
+    }
   }
 
-  // Runs one part: gather under a lease of at most patch_cap(), build with the halo
-  // (a margin redo doubles the part's margin factor), run the plan, summarize, export.
-  // False, with nothing run or kept, when the gather found more faces than the lease
-  // holds.
+  // Runs one part: gather and build under a lease of at most patch_cap(), run the
+  // plan, summarize, export. False, with nothing run or kept, when the gather found
+  // more faces than the lease holds.
   bool run_part(const MeshState& state, MeshState* next, PatchPart& part, const PatchPlan& plan,
                 const DecimateParams& params, std::vector<std::vector<Candidate>>* candidates, uint64_t needed,
                 RoundSummary& total) {
@@ -1201,17 +1392,14 @@ struct Runner {
     for (;;) {
       job.check();
       const int rings = this->rings();
-      const double margin = part_margin(part, rings);
-      if (margin < (rings + 2) * owner_edge[p] * part.margin_factor) ++stats.reach_gathers;
-      // The gather's upper bound from the chunk metas: when it fits, the gather cannot
-      // go over; the lease is trimmed to what was found.
-      const GatherPlan gather = plan_gather(state, &part, margin);
-      const uint64_t want = std::min(gather.most_faces * bytes_per_face, patch_cap());
+      // What the gather will hold is not known before it ran: the lease is what a patch
+      // may hold (or the whole state, if less), trimmed to what was gathered.
+      const uint64_t want = std::min(std::max<uint64_t>(1, state.faces) * bytes_per_face, patch_cap());
       Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
       job.check();
-      Gathered g = load_candidates(job, scratch, gather, &part, lease.bytes() / bytes_per_face);
+      Gathered g;
+      std::optional<PatchInput> built = gather_and_build(state, part, rings, lease.bytes() / bytes_per_face, g, clock);
       stats.gathered_faces_total += g.found_faces;
-      clock.charge(kGather);
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
         if (g.owned_faces <= kSmallestPart) refuse_part(g);
@@ -1219,32 +1407,16 @@ struct Runner {
       }
       lease.shrink_to(g.faces.size() * bytes_per_face);
       const uint64_t owned_faces = g.owned_faces;
-      BuiltPatch built;
-      job.arena().execute([&] { built = build_patch(g, p, rings, false, carry_bests, gather.owned_boxes); });
       g = {};
-      clock.charge(kBuild);
-      if (built.margin_too_small) {
-        if (part.reach_rings > 0)
-          part.reach_rings = 0;  // back to the factor's margin
-        else
-          part.margin_factor *= 2;
-        ++stats.margin_redos;
-        continue;
-      }
-      if (rings >= part.reach_rings && owner_edge[p] > 0) {
-        const double edges = built.reach / owner_edge[p];
-        part.reach_edges = rings == part.reach_rings ? std::max(part.reach_edges, edges) : edges;
-        part.reach_rings = rings;
-      }
-      stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built.input.faces.size());
-      stats.patch_faces_total += built.input.faces.size();
+      stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built->faces.size());
+      stats.patch_faces_total += built->faces.size();
       stats.owned_faces_total += owned_faces;
       bool ok = true;
       RoundSummary summary;
       std::vector<Candidate> owned;
       std::optional<PatchOutput> out;
       job.arena().execute([&] {
-        PatchDecimator d(std::move(built.input), params);
+        PatchDecimator d(std::move(*built), params);
         stats.carried_bests += d.restored_bests();
         clock.charge(kSetup);
         run_patch_plan(d, plan, clock, stats.first_round_refreshes);
@@ -1283,13 +1455,14 @@ struct Runner {
   // would not make the patch fit.
   static constexpr uint64_t kSmallestPart = 2048;
 
+  // The gather stops once it holds too much, so the need is a lower bound.
   [[noreturn]] void refuse_part(const Gathered& g) const {
     const uint64_t need = g.found_faces * bytes_per_face;
     // patch_cap() is 3/4 of the job's capacity, which is the budget less the baseline and the trace.
     const uint64_t minimum = need / 3 * 4 + job.governor().baseline() + job.held_for_run();
     throw Error(ErrorKind::resource,
                 "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings()) +
-                    "-ring halo (" + std::to_string(g.found_faces) + " faces) needs " + config::format_size(need) +
+                    "-ring halo (over " + std::to_string(g.found_faces) + " faces) needs over " + config::format_size(need) +
                     " of memory but --mem-budget " + config::format_size(job.governor().budget()) +
                     " lets a patch hold " + config::format_size(patch_cap()) + "; this needs a budget of at least " +
                     config::format_size(minimum));
@@ -1302,8 +1475,7 @@ struct Runner {
     for (int k = 1; k < 3; ++k)
       if (owned.max[k] - owned.min[k] > owned.max[axis] - owned.min[axis]) axis = k;
     const double middle = 0.5 * (owned.min[axis] + owned.max[axis]);
-    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region, part.margin_factor,
-                  part.reach_rings, part.reach_edges};
+    PatchPart low{part.owner, false, part.whole ? Box::unbounded() : part.region};
     PatchPart high = low;
     low.region.max[axis] = middle;
     high.region.min[axis] = middle;
@@ -1506,7 +1678,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                                        std::min(capacity, finish_bytes), [&] { return job.stopped(); });
   PatchInput whole;
   {
-    Gathered g = load_candidates(job, scratch, plan_gather(*state, nullptr, 0.0), nullptr);
+    Gathered g = load_state(job, scratch, *state);
     job.arena().execute([&] { whole = build_whole_patch(std::move(g), runner.carry_bests); });
   }
   replace_state(new_state());

@@ -24,19 +24,25 @@
 //   round refreshes only the other vertices (decimator.hpp, PatchInput::best_gids).
 //   Nothing collapses between a summary and the next pass; when the guards relax in
 //   between, nothing is carried (the bests were found under the old params).
-// - A patch's halo: faces within `rings` rings of its owned faces, found by BFS over
-//   the faces with a vertex near the owned faces (the boxes of runs of their chunks'
-//   faces grown by a margin; chunks that meet none are not read). The margin starts at
-//   (rings + 2) * 1.5 mean edges and then follows the reach the part's last built halo
-//   measured, with slack (counted: reach_gathers); a vertex whose fan is not whole in
-//   what was loaded (loaded faces < degree) may not be expanded: then the margin goes
-//   back to the factor's, or doubles, and the patch is gathered again (margin_redos).
-//   The margin changes what is read, never the patch.
+// - A patch's halo: faces within `rings` rings of its owned faces, found by a BFS that
+//   drives the gather. Each chunk's meta keeps the boxes of 8 runs of its faces (an
+//   export's chunk is in Morton order, so a run is a compact piece of surface); a run's
+//   box holds its faces' corners, so every face of a vertex lies in a run whose box
+//   holds the vertex. The gather reads the runs that may hold owned faces, then runs
+//   the BFS over what it read; where the BFS must expand a vertex whose fan is not
+//   whole there (loaded faces < degree), it goes on around it, and one batch of reads
+//   brings every run not yet read whose box holds such a vertex; then the BFS goes on
+//   from those vertices over the new faces (its index and rings are kept across the
+//   batches, not rebuilt; counted: gather_reads), until no vertex is blocked (at most
+//   rings + 1 batches: each completes the fans that stopped the BFS). A run is read at
+//   most once per gather, so no face is held twice; a frame read for some of its runs
+//   leaves the others in a cache within the lease's room, so a later batch asking for
+//   them reads no frame twice. What is read changes, never the patch.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
 // - Memory: a patch runs under one governor lease of kPatchBytesPerFace per gathered
-//   face, at most 3/4 of the capacity; the gather stops holding faces once it finds
-//   more than the lease covers. Such a patch is split: its owner runs as parts (the
+//   face, at most 3/4 of the capacity (taken whole before the gather, trimmed after it);
+//   the gather stops holding faces, and reading, once it finds more than the lease covers. Such a patch is split: its owner runs as parts (the
 //   faces whose centroid lies in each half of a region, halved again as needed), a
 //   finer partition with the same output; a part of at most 2048 owned faces that
 //   still does not fit is refused with the minimum budget (Error resource). The
@@ -95,11 +101,10 @@ struct OocStats {
   uint64_t epochs = 0;               // global plans (out of core + in core)
   uint64_t ooc_epochs = 0;           // passes over the patches
   uint64_t rounds = 0;
-  uint64_t halo_redos = 0, margin_redos = 0;
-  // Gathers whose margin came from the part's measured halo reach (the farthest vertex
-  // its last built halo expanded, with slack) rather than the (rings + 2) * 1.5 mean
-  // edges a part starts with: tighter, so fewer faces read, kept and split for.
-  uint64_t reach_gathers = 0;
+  uint64_t halo_redos = 0;
+  // The patch gathers' batches of chunk reads: a part's first (its owned runs) and one
+  // per stop of its BFS at vertices whose fans were not read yet (epochs.hpp).
+  uint64_t gather_reads = 0;
   uint64_t patch_splits = 0;         // a patch part halved because it did not fit its lease
   int max_rings = 0;
   uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)
@@ -113,7 +118,7 @@ struct OocStats {
   // converted from being removed by then.
   uint64_t scratch_epochs_start_bytes = 0;
   // Summed over the out-of-core patch builds (redos included): faces read by the gathers
-  // (owned + every face the box filter kept), faces of the built patches (owned + halo)
+  // (every face of the runs they read), faces of the built patches (owned + halo)
   // and owned faces; their ratios say what the halo and the gather cost.
   uint64_t gathered_faces_total = 0, patch_faces_total = 0, owned_faces_total = 0;
   // Best edges carried from the previous pass's summary (VertexRecord): vertices whose

@@ -81,8 +81,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["out_of_core_epochs"] = st.ooc_epochs;
     report["rounds"] = st.rounds;
     report["halo_redos"] = st.halo_redos;
-    report["margin_redos"] = st.margin_redos;
-    report["reach_gathers"] = st.reach_gathers;
+    report["gather_reads"] = st.gather_reads;
     report["patch_splits"] = st.patch_splits;
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;
