@@ -436,7 +436,7 @@ void PatchDecimator::verify_restored_bests() {
   // (collapse_valid reads both endpoints'), before any refresh: best_ / best_cost_ of a
   // restored vertex are still the carried values.
   std::atomic<uint64_t> worst_gid{~uint64_t{0}};
-  std::vector<uint64_t> found(pos_.size(), 0);  // 1 + v at the mismatches
+  std::vector<uint64_t> found(pos_.size(), 0);  // 1 at the mismatches
   tbb::enumerable_thread_specific<Scratch> scratch;
   parallel_over_with(pos_.size(), scratch, [&](size_t vi, Scratch& s) {
     if (!verify_restored_[vi]) return;

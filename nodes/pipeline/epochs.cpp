@@ -283,7 +283,7 @@ class UniqueVertexRecords {
   size_t mask_ = 0;
 };
 
-// Builds a chunk blob from faces and the (gid-sorted, deduplicated) vertex records they use.
+// Builds a chunk blob from faces and the (deduplicated) vertex records they use.
 Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
   Bytes blob(blob_bytes(faces.size(), vertices.size()));
   const uint64_t nf = faces.size(), nv = vertices.size();
@@ -322,10 +322,13 @@ struct MeshState {
   std::deque<Chunk> chunks;
   std::mutex mutex;
   uint64_t faces = 0;
-  double vertex_shares = 0;  // the chunks' vertex_share summed: vertices()
+  // The chunks' vertex_share summed in fixed point (units of 2^-20), so the sum does not
+  // depend on the order chunks are written in.
+  int64_t vertex_share_units = 0;
+  static constexpr int kShareBits = 20;
   // The distinct vertices of the faces (what the finish's memory rule counts,
   // in_core_finish_bytes); unreferenced input vertices are not in the state.
-  uint64_t vertices() const { return uint64_t(std::llround(vertex_shares)); }
+  uint64_t vertices() const { return uint64_t((vertex_share_units + (int64_t(1) << (kShareBits - 1))) >> kShareBits); }
   uint64_t blob_bytes_total = 0;
 };
 
@@ -345,7 +348,7 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
     c.frame.tag = meta.owner;
     state.chunks.push_back(c);
     state.faces += meta.faces;
-    state.vertex_shares += meta.vertex_share;
+    state.vertex_share_units += std::llround(std::ldexp(meta.vertex_share, MeshState::kShareBits));
     state.blob_bytes_total += blob_size;
   }
   job.stage(stage).bytes_written += encoded->size();
@@ -1577,8 +1580,8 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
 
   auto state = std::make_unique<MeshState>();
   state->file = scratch.create_file("state-0");
-  // At least ~32 chunks per patch: a gather reads whole chunks and filters them by
-  // their boxes, so chunks much larger than a patch's halo band make small patches
+  // At least ~32 chunks per patch: a gather reads a chunk's runs by their boxes, so
+  // chunks much larger than a patch's halo band make small patches
   // (the 1M-face demo's 60K) read several times their own state. Any chunking gives
   // the same patches.
   const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,

@@ -40,9 +40,11 @@
 //   them reads no frame twice. What is read changes, never the patch.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
-// - Memory: a patch runs under one governor lease of kPatchBytesPerFace per gathered
-//   face, at most 3/4 of the capacity (taken whole before the gather, trimmed after it);
-//   the gather stops holding faces, and reading, once it finds more than the lease covers. Such a patch is split: its owner runs as parts (the
+// - Memory: a patch runs under one governor lease of patch_bytes_per_face per gathered
+//   face (kPatchBytesPerFace, more for a state with many vertices per face), at most 3/4
+//   of the capacity (taken whole before the gather, trimmed after it); the gather stops
+//   holding faces, and reading further batches, once it finds more than the lease
+//   covers. Such a patch is split: its owner runs as parts (the
 //   faces whose centroid lies in each half of a region, halved again as needed), a
 //   finer partition with the same output; a part of at most 2048 owned faces that
 //   still does not fit is refused with the minimum budget (Error resource). The
