@@ -97,7 +97,7 @@ uint64_t next_fuzz_salt() {
 }
 // Puts `items` in a pseudo-random order (Fisher-Yates on next_fuzz_salt()).
 template <class Items>
-void shuffle(Items& items, uint64_t /*seed*/) {
+void shuffle(Items& items) {
   uint64_t x = next_fuzz_salt();
   for (size_t i = items.size(); i > 1; --i) {
     x = mix64(x + i);
@@ -237,21 +237,25 @@ class GidTable {
   std::vector<std::pair<uint64_t, uint32_t>> slots_;
 };
 
-// The gathered vertex records, one per gid, appended to `records` (which must not
-// reallocate: reserved at its upper bound): a gid's records in several chunks are equal
-// copies but for the carried best, and the one kept is the first with a known best, else
-// the first (build_patch's rule, so the patch is the same). Without this, a state whose
-// chunks share few vertices (the first state of an input in random face order: ~2.8
-// records per face, against ~0.6) held ~4x the vertex records the patch lease
-// (kPatchBytesPerFace) counts. An open-addressing table of record indices (4 bytes a
-// slot, the gid read from the record) that doubles as records come.
+// The gathered vertex records, one per gid, appended to `records` (empty at the start;
+// reserved at its upper bound, so it does not reallocate): a gid's records in several
+// chunks are equal copies but for the carried best, and the one kept is the first with
+// a known best, else the first (so the patch does not depend on the read order).
+// Without this, a state whose chunks share few vertices (the first state of an input
+// in random face order: ~2.8 records per face, against ~0.6) held ~4x the vertex
+// records the patch lease (kPatchBytesPerFace) counts. The table holds 4-byte record
+// indices (the gid read from the record); the part's BFS finds its vertices through it.
 class UniqueVertexRecords {
  public:
-  explicit UniqueVertexRecords(std::vector<VertexRecord>& records) : records_(records) { rehash(1024); }
+  static constexpr uint32_t kMissing = std::numeric_limits<uint32_t>::max();
+  explicit UniqueVertexRecords(std::vector<VertexRecord>& records) : records_(records) {
+    if (!records_.empty()) throw Error(ErrorKind::internal, "UniqueVertexRecords needs an empty array");
+    rehash(1024);
+  }
   void add(const VertexRecord& r) {
     if (2 * (records_.size() + 1) > slots_.size()) rehash(2 * slots_.size());
     size_t at = slot_of(r.gid);
-    for (; slots_[at] != kEmpty; at = (at + 1) & mask_) {
+    for (; slots_[at] != kMissing; at = (at + 1) & mask_) {
       VertexRecord& kept = records_[slots_[at]];
       if (kept.gid != r.gid) continue;
       if (verify_) check_copies_agree(kept, r);
@@ -261,24 +265,31 @@ class UniqueVertexRecords {
     slots_[at] = uint32_t(records_.size());
     records_.push_back(r);
   }
+  // The index of the gid's record (kMissing when none was added). Read-only: callers
+  // may look up from several threads between adds.
+  uint32_t find(uint64_t gid) const {
+    for (size_t at = slot_of(gid); slots_[at] != kMissing; at = (at + 1) & mask_)
+      if (records_[slots_[at]].gid == gid) return slots_[at];
+    return kMissing;
+  }
+  void release() { release_memory(slots_); }
 
  private:
-  static constexpr uint32_t kEmpty = std::numeric_limits<uint32_t>::max();
   size_t slot_of(uint64_t gid) const { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift_); }
   void rehash(size_t slots) {
     release_memory(slots_);  // the old table is not kept beside the new one
-    slots_.assign(slots, kEmpty);
+    slots_.assign(slots, kMissing);
     shift_ = 64 - std::countr_zero(slots);
     mask_ = slots - 1;
     for (uint32_t i = 0; i < records_.size(); ++i) {
       size_t at = slot_of(records_[i].gid);
-      while (slots_[at] != kEmpty) at = (at + 1) & mask_;
+      while (slots_[at] != kMissing) at = (at + 1) & mask_;
       slots_[at] = i;
     }
   }
   std::vector<VertexRecord>& records_;
   const bool verify_ = verify_carried_enabled();
-  std::vector<uint32_t> slots_;
+  std::vector<uint32_t> slots_;  // record indices, the gid read from the record
   int shift_ = 0;
   size_t mask_ = 0;
 };
@@ -818,7 +829,7 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
     runs_of.emplace(m.first_fid, RunRead{r.chunk, rest});
   }
   if (g.over_limit) frames.clear();
-  if (order_fuzz_seed()) shuffle(frames, order_fuzz_seed());
+  if (order_fuzz_seed()) shuffle(frames);
   cache.room = int64_t(limit_faces) - int64_t(g.found_faces + asked_faces) - int64_t(RunCache::kCachedRunWeight * cache.faces);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1,
@@ -917,7 +928,7 @@ Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
   g.faces.reserve(state.faces);
   g.vertices.reserve(state.blob_bytes_total / sizeof(VertexRecord) + 1);
   UniqueVertexRecords unique_vertices(g.vertices);
-  if (order_fuzz_seed()) shuffle(frames, order_fuzz_seed());
+  if (order_fuzz_seed()) shuffle(frames);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1, nullptr,
       [&](const FrameHeader&, Bytes& records, Lease&) {
@@ -958,54 +969,6 @@ void append_vertex(PatchInput& in, const VertexRecord& r, bool quadrics, bool be
 
 uint64_t fuzz_salt() { return order_fuzz_seed() ? next_fuzz_salt() : 0; }
 
-// gid → dense id (0, 1, 2, ... in first-insert order), by open addressing that grows
-// as ids are added: the gather's index gains vertex records batch by batch.
-class GrowingGidMap {
- public:
-  static constexpr uint32_t kMissing = std::numeric_limits<uint32_t>::max();
-  uint32_t size() const { return size_; }
-  // The gid's id, added as the next one if new (`added`).
-  uint32_t insert(uint64_t gid, bool& added) {
-    if (2 * (size_t(size_) + 1) > slots_.size()) grow();
-    size_t at = slot_of(gid);
-    while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
-    added = slots_[at].second == kMissing;
-    if (added) slots_[at] = {gid, size_++};
-    return slots_[at].second;
-  }
-  uint32_t find(uint64_t gid) const {
-    if (slots_.empty()) return kMissing;
-    size_t at = slot_of(gid);
-    while (slots_[at].second != kMissing && slots_[at].first != gid) at = (at + 1) & mask_;
-    return slots_[at].second;
-  }
-  void release() {
-    release_memory(slots_);
-    size_ = 0;
-  }
-
- private:
-  size_t slot_of(uint64_t gid) const { return size_t((gid * 0x9E3779B97F4A7C15ull) >> shift_); }
-  void grow() {
-    std::vector<std::pair<uint64_t, uint32_t>> old;
-    old.swap(slots_);
-    const size_t slots = std::max<size_t>(1024, 2 * old.size());
-    shift_ = 64 - std::countr_zero(slots);
-    mask_ = slots - 1;
-    slots_.assign(slots, {0, kMissing});
-    for (const auto& [gid, id] : old)
-      if (id != kMissing) {
-        size_t at = slot_of(gid);
-        while (slots_[at].second != kMissing) at = (at + 1) & mask_;
-        slots_[at] = {gid, id};
-      }
-  }
-  int shift_ = 0;
-  size_t mask_ = 0;
-  uint32_t size_ = 0;
-  std::vector<std::pair<uint64_t, uint32_t>> slots_;
-};
-
 // A part's halo BFS over what its gather read so far, kept across the gather's read
 // batches: each batch's faces and vertex records are indexed once (add), and the BFS
 // goes on from where it stopped (run) instead of starting over: the vertices it had
@@ -1015,9 +978,9 @@ class GrowingGidMap {
 // a pass blocks at the vertices a fresh BFS would (the reads, and the patch, are the
 // same). Owned faces are all in the first batch (owned_runs).
 //
-// The gather keeps one record per gid (UniqueVertexRecords: the first copy with a
-// known carried best, else the first read), so the patch does not depend on the read
-// order; a record it replaces keeps its index.
+// A vertex is its record's index in the gathered array, which holds one record per gid
+// (UniqueVertexRecords: the first copy with a known carried best, else the first read,
+// so the patch does not depend on the read order; a record it replaces keeps its index).
 class PatchBfs {
  public:
   PatchBfs(uint32_t owner, int rings, uint64_t limit_faces) : owner_(owner), rings_(rings), pending_(rings + 1) {
@@ -1026,34 +989,25 @@ class PatchBfs {
     local_.reserve(limit_faces);
     face_ring_.reserve(limit_faces);
     next_.reserve(3 * limit_faces);
-    record_.reserve(3 * limit_faces);
     head_.reserve(3 * limit_faces);
     loaded_.reserve(3 * limit_faces);
     ring_.reserve(3 * limit_faces);
   }
 
-  // Indexes the records `g` gained since the last call (read order).
-  void add(const Gathered& g) {
-    const VertexRecord* vb = g.vertices.data();
-    for (size_t i = indexed_vertices_; i < g.vertices.size(); ++i) {
-      bool added = false;
-      ids_.insert(vb[i].gid, added);  // a new gid but for a record replaced in place
-      if (added) {
-        record_.push_back(uint32_t(i));
-        head_.push_back(kNone);
-        loaded_.push_back(0);
-        ring_.push_back(kUnreached);
-      }
-    }
-    indexed_vertices_ = g.vertices.size();
+  // Indexes the faces and vertex records `g` gained since the last call (read order); a
+  // vertex's id is its record's index (`ids`: the gather's, one record per gid).
+  void add(const Gathered& g, const UniqueVertexRecords& ids) {
+    head_.resize(g.vertices.size(), kNone);
+    loaded_.resize(g.vertices.size(), 0);
+    ring_.resize(g.vertices.size(), kUnreached);
     const size_t first = local_.size(), nf = g.faces.size();
     local_.resize(nf);
     std::atomic<bool> missing = false;
     tbb::parallel_for(tbb::blocked_range<size_t>(first, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
       for (size_t f = range.begin(); f < range.end(); ++f)
         for (int k = 0; k < 3; ++k) {
-          const uint32_t v = ids_.find(g.faces[f].v[k]);
-          if (v == GrowingGidMap::kMissing) {
+          const uint32_t v = ids.find(g.faces[f].v[k]);
+          if (v == UniqueVertexRecords::kMissing) {
             missing = true;
             continue;
           }
@@ -1090,7 +1044,7 @@ class PatchBfs {
       level.swap(pending_[r]);
       for (uint32_t v : level) {
         if (ring_[v] != r) continue;  // reached at a smaller ring since
-        if (loaded_[v] < vb[record_[v]].degree) {
+        if (loaded_[v] < vb[v].degree) {
           blocked_.push_back(v);
           continue;
         }
@@ -1109,7 +1063,7 @@ class PatchBfs {
     blocked_.erase(std::unique(blocked_.begin(), blocked_.end()), blocked_.end());
     std::vector<Point> positions;
     positions.reserve(blocked_.size());
-    for (uint32_t v : blocked_) positions.push_back(vb[record_[v]].position);
+    for (uint32_t v : blocked_) positions.push_back(vb[v].position);
     return positions;
   }
 
@@ -1117,12 +1071,11 @@ class PatchBfs {
   // fid / gid order; flags as decimator.hpp asks. Consumes the index.
   PatchInput build(const Gathered& g, bool carry_bests) {
     const VertexRecord* vb = g.vertices.data();
-    ids_.release();
     release_memory(next_);
     release_memory(head_);
     // The selection in fid order (faces) and gid order (vertices): (key, index) pairs.
     std::vector<std::pair<uint64_t, uint32_t>> forder;
-    const size_t nf = local_.size(), nv = record_.size();
+    const size_t nf = local_.size(), nv = loaded_.size();
     forder.reserve(size_t(nf - std::count(face_ring_.begin(), face_ring_.end(), kUnreached)));
     for (size_t f = 0; f < nf; ++f)
       if (face_ring_[f] != kUnreached) forder.push_back({g.faces[f].fid, uint32_t(f)});
@@ -1137,7 +1090,7 @@ class PatchBfs {
     std::vector<std::pair<uint64_t, uint32_t>> vorder;
     vorder.reserve(size_t(nv - std::count(inside.begin(), inside.end(), 0u)));
     for (size_t v = 0; v < nv; ++v)
-      if (inside[v]) vorder.push_back({vb[record_[v]].gid, uint32_t(v)});
+      if (inside[v]) vorder.push_back({vb[v].gid, uint32_t(v)});
     tbb::parallel_sort(vorder.begin(), vorder.end());
     const size_t kept_v = vorder.size();
     PatchInput in;
@@ -1159,7 +1112,7 @@ class PatchBfs {
       in.best_costs.reserve(kept_v);
     }
     for (const auto& [gid, v] : vorder) {
-      const VertexRecord& r = vb[record_[v]];
+      const VertexRecord& r = vb[v];
       new_index[v] = uint32_t(in.vertex_gids.size());
       append_vertex(in, r, given_quadrics, carried, fuzz);
       const bool incomplete = inside[v] < r.degree;
@@ -1179,7 +1132,6 @@ class PatchBfs {
       in.owned_face.push_back(g.faces[f].owner == owner_);
     }
     release_memory(local_);
-    release_memory(record_);
     release_memory(loaded_);
     release_memory(ring_);
     return in;
@@ -1197,9 +1149,6 @@ class PatchBfs {
 
   uint32_t owner_;
   int rings_;
-  GrowingGidMap ids_;                          // gid → vertex
-  size_t indexed_vertices_ = 0;                // records indexed so far
-  std::vector<uint32_t> record_;               // vertex → the record standing for it
   std::vector<std::array<uint32_t, 3>> local_; // face → its corners' vertices
   // Fans as lists through the faces' corners: head_[v] → 3 f + k → next_[3 f + k] ...
   std::vector<uint32_t> head_, next_, loaded_;
@@ -1368,12 +1317,13 @@ struct Runner {
       if (g.over_limit || g.owned_faces == 0) return std::nullopt;
       std::vector<Point> blocked;
       job.arena().execute([&] {
-        bfs.add(g);
+        bfs.add(g, unique_vertices);
         blocked = bfs.run(g);
       });
       clock.charge(kBuild);
       if (blocked.empty()) {
         cache.runs.clear();  // runs no batch asked for (none when the room was short)
+        unique_vertices.release();  // the build reads records by index
         std::optional<PatchInput> input;
         job.arena().execute([&] { input = bfs.build(g, carry_bests); });
         clock.charge(kBuild);
@@ -1587,7 +1537,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,
                                                     std::min<uint64_t>(1024, options.chunk_faces), options.chunk_faces);
   convert_blocks(job, scratch, mesh, partition, chunk_faces, *state);
-  if (const uint64_t seed = order_fuzz_seed()) shuffle(state->chunks, seed);
+  if (order_fuzz_seed()) shuffle(state->chunks);
   // The conversion read the blocks (and an out-of-core load's vertex windows) for the
   // last time: their disk goes back before the epochs write each state beside the last
   // (at 200M faces about 6 GB of 31 GB).
