@@ -47,6 +47,13 @@ nlohmann::json simplify_with_report(const TempDir& dir, const std::filesystem::p
   return read_json(report);
 }
 
+// The last simplify_with_report's output (DIR/out.ply) must be the `--in-core` run's
+// file (`qemflow simplify MESH DIR/in_core.ply TARGET --in-core`) byte for byte.
+void expect_out_equals_in_core(const TempDir& dir, const std::filesystem::path& mesh, const std::string& target) {
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " " + target + " --in-core --quiet");
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+}
+
 // Runs in core and out of core with each cluster count; every output file must be the
 // in-core one byte for byte. `in_core_faces` keeps the run out of core down to that size.
 // Out-of-core runs write --double (float output rounds away bit drift: a quadric sum in
@@ -219,9 +226,8 @@ TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
   // (no sampling, clusters or epochs) and still writes the --in-core file.
   TempDir dir;
   const auto mesh = generate(dir, "--faces 120000");
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.05 --in-core --quiet");
   const auto r = simplify_with_report(dir, mesh, "--ratio 0.05 --mem-budget 64M");
-  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply"));
+  expect_out_equals_in_core(dir, mesh, "--ratio 0.05");
   EXPECT_EQ(r["patches"].get<int>(), 1);
   EXPECT_EQ(r["out_of_core_epochs"].get<int>(), 0);
   EXPECT_EQ(r["in_core_faces"].get<uint64_t>(), 120000u);
@@ -265,8 +271,7 @@ TEST(SimplifyOoc, ShuffledInputStaysUnderTheBudget) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 300000 --shuffle 1");
   const auto r = simplify_with_report(dir, mesh, "--ratio 0.01 --clusters 2 --mem-budget 80M");
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
-  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+  expect_out_equals_in_core(dir, mesh, "--ratio 0.01");
   EXPECT_GE(r["patch_splits"].get<int>(), 1);
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
@@ -298,11 +303,10 @@ TEST(SimplifyOoc, GatherReadsWhatTheHaloReaches) {
 TEST(SimplifyOoc, SmallBudgetThatBoxGathersRefusedRuns) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 200000");
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
   const auto r = simplify_with_report(dir, mesh, "--ratio 0.01 --mem-budget 64M");
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 64ull << 20);
-  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+  expect_out_equals_in_core(dir, mesh, "--ratio 0.01");
 }
 
 // The conversion reads the blocks for the last time: as the epochs start, the first
@@ -328,14 +332,13 @@ TEST(SimplifyOoc, BlocksLeaveTheScratchOnceConverted) {
 TEST(SimplifyOoc, PatchLargerThanItsLeaseIsSplitAndStaysUnderTheBudget) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 300000");
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
   const auto r =
       simplify_with_report(dir, mesh, "--ratio 0.01 --clusters 2 --in-core-faces 150000 --mem-budget 80M");
   EXPECT_GE(r["patch_splits"].get<int>(), 1);
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["governor_peak_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>() - r["baseline_bytes"].get<uint64_t>());
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
-  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+  expect_out_equals_in_core(dir, mesh, "--ratio 0.01");
 }
 
 // The demo's size (scripts/demo.sh: 1M faces under 96M), where a patch once ran past
@@ -383,12 +386,11 @@ TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
 TEST(SimplifyOoc, ATraceAtASmallBudgetIsNoHang) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 300000");
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
   const auto r = simplify_with_report(
       dir, mesh, "--ratio 0.01 --mem-budget 80M --threads 1 --trace " + (dir / "t.json").string(), 300);
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
-  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+  expect_out_equals_in_core(dir, mesh, "--ratio 0.01");
 }
 
 TEST(SimplifyOoc, AForcedFinishLargerThanTheBudgetAllowsIsCappedNotAHang) {
@@ -399,13 +401,12 @@ TEST(SimplifyOoc, AForcedFinishLargerThanTheBudgetAllowsIsCappedNotAHang) {
   // `timeout`, so a hang fails the test).
   TempDir dir;
   const auto mesh = generate(dir, "--faces 500000");
-  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "in_core.ply").string() + " --ratio 0.01 --in-core --quiet");
   const auto r =
       simplify_with_report(dir, mesh, "--ratio 0.01 --clusters 2 --in-core-faces 500000 --mem-budget 100M", 300);
   const uint64_t capacity = r["budget_bytes"].get<uint64_t>() - r["baseline_bytes"].get<uint64_t>();
   EXPECT_LE(r["in_core_faces"].get<uint64_t>() * r["in_core_lease_bytes_per_face"].get<uint64_t>(),
             uint64_t(0.9 * double(capacity)));
-  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
+  expect_out_equals_in_core(dir, mesh, "--ratio 0.01");
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 100ull << 20);
 }
 
