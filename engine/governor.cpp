@@ -150,10 +150,12 @@ Lease Governor::try_acquire(const std::string& owner, uint64_t bytes) {
 }
 
 // The one grant path. `wait`: block on the condition; `on_available`: register it
-// instead of failing. Returns an empty lease when nothing was granted.
+// instead of failing; `share`: the grant's size from what is free (else up to `max`).
+// Returns an empty lease when nothing was granted.
 Lease Governor::grant_when_free(const std::string& owner, uint64_t min, uint64_t max, bool wait,
                                 const std::function<bool()>& stop,
-                                std::function<void()>* on_available) {
+                                std::function<void()>* on_available,
+                                const std::function<uint64_t(uint64_t)>* share) {
   require_fits(owner, min);
   max = std::max(min, max);
   Lease lease;
@@ -169,7 +171,9 @@ Lease Governor::grant_when_free(const std::string& owner, uint64_t min, uint64_t
       if (!wait || (stop && stop())) return {};
       released_.wait(lock);
     }
-    lease = grant(record, std::min(max, capacity() - in_use_), max);
+    const uint64_t free = capacity() - in_use_;
+    if (share) max = std::clamp<uint64_t>((*share)(free), min, free);
+    lease = grant(record, std::min(max, free), max);
     now = in_use_;
   }
   if (observer_) observer_(now);
@@ -183,6 +187,12 @@ Lease Governor::try_acquire_partial(const std::string& owner, uint64_t min, uint
 Lease Governor::acquire(const std::string& owner, uint64_t min, uint64_t max,
                         const std::function<bool()>& stop) {
   return grant_when_free(owner, min, max, true, stop, nullptr);
+}
+
+Lease Governor::acquire_share(const std::string& owner, uint64_t min,
+                               const std::function<uint64_t(uint64_t free)>& share,
+                               const std::function<bool()>& stop) {
+  return grant_when_free(owner, min, min, true, stop, nullptr, &share);
 }
 
 Lease Governor::acquire_or_notify(const std::string& owner, uint64_t min, uint64_t max,

@@ -98,6 +98,15 @@ class Governor {
   // every wake-up (wake_all() wakes waiters); if it returns true, returns an empty Lease.
   Lease acquire(const std::string& owner, uint64_t min, uint64_t max,
                 const std::function<bool()>& stop = {});
+  // A working set held across a pass: blocks until `min` is free, then grants
+  // share(free) clamped to [min, free], `free` being what is free at the grant (under
+  // the lock). Sizing from available() and then acquiring lets two jobs count the same
+  // free bytes, so together they could hold everything and leave their streams nothing
+  // to read with (they would wait forever); a share computed here leaves what the
+  // share function leaves.
+  Lease acquire_share(const std::string& owner, uint64_t min,
+                      const std::function<uint64_t(uint64_t free)>& share,
+                      const std::function<bool()>& stop = {});
   // Grants now if at least `min` is free; else returns empty and calls `on_available`
   // once (from whichever thread releases memory, outside the lock) when `min` may fit.
   // The callback must be cheap and must not block (e.g. re-queue a task).
@@ -124,7 +133,8 @@ class Governor {
   Owner* owner_record(const std::string& owner);  // under lock
   Lease grant(Owner* owner, uint64_t bytes, uint64_t asked);  // under lock
   Lease grant_when_free(const std::string& owner, uint64_t min, uint64_t max, bool wait,
-                        const std::function<bool()>& stop, std::function<void()>* on_available);
+                        const std::function<bool()>& stop, std::function<void()>* on_available,
+                        const std::function<uint64_t(uint64_t)>* share = nullptr);
   void give_back(void* owner, uint64_t bytes);
   void* move_bytes(void* from, void* to, uint64_t bytes);  // accounting only
   void* record_for(const std::string& owner);

@@ -378,10 +378,13 @@ class Loader {
     uint64_t reserve_min = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace));
     uint64_t items_min = 4 * max_input_lease;
     job_.require_fits(job_.owner("loader"), reserve_min + items_min);
-    uint64_t available = job_.governor().available();
-    uint64_t want = std::max(reserve_min, available - std::min(available, std::max(items_min, available / 4)));
-    reserve_ = job_.governor().acquire(job_.owner("loader reserve"), reserve_min, want,
-                                       [this] { return job_.stopped(); });
+    // Sized from what is free at the grant: another job's loader starting at the same
+    // moment must not count the same bytes (together they took everything, and both
+    // input streams waited forever for a batch lease).
+    reserve_ = job_.governor().acquire_share(
+        job_.owner("loader reserve"), reserve_min,
+        [items_min](uint64_t free) { return free - std::min(free, std::max(items_min, free / 4)); },
+        [this] { return job_.stopped(); });
     job_.check();
     capacity_ = reserve_.bytes();
   }

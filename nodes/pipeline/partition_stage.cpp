@@ -91,9 +91,9 @@ Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, cons
     return partition::partition_peak_bytes(samples, clusters, threads) + samples * thread_sampling;
   };
   job.require_fits(job.owner("partition"), peak(min_samples) + (8ull << 20));
-  engine::Lease lease = job.governor().acquire(job.owner("partition"), peak(min_samples),
-                                               std::max(peak(min_samples), std::min(peak(wanted), job.governor().available() / 2)),
-                                               [&] { return job.stopped(); });
+  engine::Lease lease = job.governor().acquire_share(
+      job.owner("partition"), peak(min_samples), [&](uint64_t free) { return std::min(peak(wanted), free / 2); },
+      [&] { return job.stopped(); });
   job.check();
   uint64_t cap = min_samples;
   while (cap < wanted && peak(cap * 2) <= lease.bytes()) cap *= 2;

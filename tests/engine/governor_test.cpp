@@ -95,6 +95,37 @@ TEST(Governor, BlockingAcquireStopsWhenAsked) {
   waiter.join();
 }
 
+// Two jobs that sized their working sets from available() before either acquired
+// could together hold everything and leave both input streams waiting forever
+// (Reencode.TwoJobsShareOneGovernor hung that way about once in 250 runs). A share
+// is computed from what is free when it is granted.
+TEST(Governor, AShareIsSizedFromWhatIsFreeAtItsGrant) {
+  Governor governor(1000, 0);
+  auto leave_a_quarter = [](uint64_t free) { return free - free / 4; };
+  Lease first = governor.acquire_share("job0/reserve", 10, leave_a_quarter);
+  EXPECT_EQ(first.bytes(), 750u);
+  Lease second = governor.acquire_share("job1/reserve", 10, leave_a_quarter);
+  EXPECT_EQ(second.bytes(), 188u);  // 250 free at its grant, not the 1000 of before
+  EXPECT_EQ(governor.available(), 62u);  // room left for both jobs' streams
+  Lease floor = governor.acquire_share("floor", 20, [](uint64_t) { return uint64_t{0}; });
+  EXPECT_EQ(floor.bytes(), 20u);  // never below the minimum
+  Lease all = governor.acquire_share("all", 1, [](uint64_t free) { return free * 2; });
+  EXPECT_EQ(all.bytes(), 42u);  // never above what is free
+  all.release();
+  floor.release();
+
+  std::atomic<uint64_t> granted{0};
+  std::thread waiter([&] {  // 62 free: waits for its minimum of 100
+    Lease got = governor.acquire_share("waiter", 100, leave_a_quarter);
+    granted = got.bytes();
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(granted.load(), 0u);
+  second.release();  // 250 free
+  waiter.join();
+  EXPECT_EQ(granted.load(), 188u);
+}
+
 TEST(Governor, NotifyCallbackFiresOnceWhenTheMinimumFits) {
   Governor governor(100, 0);
   Lease held = governor.try_acquire("held", 90);
