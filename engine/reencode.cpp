@@ -520,40 +520,44 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
 
   // A block too large for one group: its ids counted by slab, slabs grouped while they
   // fit, and each group gathered from a read of the whole block (frame by frame),
-  // then put in order and written.
+  // then put in order and written. The slab counts and the groups live in one working
+  // lease taken before any read, at most half of what is free then: the frames read
+  // meanwhile come from the other half, so a job never holds its working set while
+  // waiting for more, and two jobs on one governor cannot leave each other no room.
   auto write_large_block = [&](uint32_t cell) {
     const std::vector<FrameRef>& frames = mesh.blocks[cell];
     const uint64_t slabs = std::clamp<uint64_t>(2 * ((mesh.face_count + limit - 1) / limit), 64, uint64_t{1} << 20);
     const uint64_t width = std::max<uint64_t>((mesh.face_count + slabs - 1) / slabs, 1);
-    std::vector<uint64_t> per_slab;
-    {
-      Lease count_lease = job.governor().acquire(owner, slabs * sizeof(uint64_t), slabs * sizeof(uint64_t),
-                                                 [&job] { return job.stopped(); });
-      job.check();
-      per_slab.assign(slabs, 0);
-      for_each_frame(job, scratch, "write", "block frames", frames, record, {},
-                     [&](const FrameHeader& header, Bytes& records, Lease&) {
-                       for (uint64_t i = 0; i < header.count; ++i) {
-                         const uint64_t slab = record_id(records.data() + i * record, record) / width;
-                         if (slab >= slabs) throw Error(ErrorKind::internal, "a face id past the face count");
-                         ++per_slab[slab];
-                       }
-                     },
-                     0);
-    }
+    const uint64_t group_bytes_per_face = per_face - record;
+    const uint64_t counts_bytes = slabs * sizeof(uint64_t);
+    Lease working = job.governor().acquire_share(
+        owner, counts_bytes + 1024 * group_bytes_per_face,
+        [&](uint64_t free) { return std::min(free / 2, counts_bytes + limit * group_bytes_per_face); },
+        [&job] { return job.stopped(); });
+    job.check();
+    const uint64_t working_bytes = working.bytes();
+    const uint64_t group_limit = (working_bytes - counts_bytes) / group_bytes_per_face;
+    std::vector<uint64_t> per_slab(slabs, 0);
+    for_each_frame(job, scratch, "write", "block frames", frames, record, {},
+                   [&](const FrameHeader& header, Bytes& records, Lease&) {
+                     for (uint64_t i = 0; i < header.count; ++i) {
+                       const uint64_t slab = record_id(records.data() + i * record, record) / width;
+                       if (slab >= slabs) throw Error(ErrorKind::internal, "a face id past the face count");
+                       ++per_slab[slab];
+                     }
+                   },
+                   0);
     for (uint64_t first = 0; first < slabs;) {
       uint64_t end = first, faces = 0;
-      while (end < slabs && (end == first || faces + per_slab[end] <= limit)) faces += per_slab[end++];
-      if (end == first + 1 && faces > limit) {
+      while (end < slabs && (end == first || faces + per_slab[end] <= group_limit)) faces += per_slab[end++];
+      if (end == first + 1 && faces > group_limit) {
         throw Error(ErrorKind::resource, "re-encode: " + std::to_string(faces) + " faces of one block within " +
                                              std::to_string(width) + " face ids do not fit the memory budget");
       }
       const uint64_t first_id = first * width, end_id = end * width;
       first = end;
       if (faces == 0) continue;
-      Lease lease = job.governor().acquire(owner, faces * (per_face - record), faces * (per_face - record),
-                                           [&job] { return job.stopped(); });
-      job.check();
+      Lease lease = working.split(faces * group_bytes_per_face);
       std::vector<Bytes> group(1);
       group[0].resize(faces * record);
       uint64_t at = 0;
@@ -580,6 +584,17 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
       OutputPieces out;
       const Ordering ordering = merge(group, out);
       submit(out, ordering, lease);
+      // The output pieces took their part of the lease to the I/O thread; once they
+      // are written it is free again, and the working set is made whole for the next
+      // group (only bytes this job just gave back are waited for).
+      working.merge(std::move(lease));
+      job.io().drain();
+      job.check();
+      const uint64_t deficit = working_bytes - working.bytes();
+      if (first < slabs && deficit > 0 && !working.try_grow(deficit)) {
+        working.merge(job.governor().acquire(owner, deficit, deficit, [&job] { return job.stopped(); }));
+        job.check();
+      }
     }
   };
 
