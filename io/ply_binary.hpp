@@ -7,6 +7,7 @@
 #include <string>
 
 #include "io/ply_header.hpp"
+#include "util/error.hpp"
 #include "util/geometry.hpp"
 
 namespace qemflow::io::ply_binary {
@@ -14,6 +15,21 @@ namespace qemflow::io::ply_binary {
 // A list may not make one record longer than this; a larger one is corrupt input
 // rather than a polygon anyone meant to write.
 constexpr size_t max_record_bytes = size_t{1} << 26;
+
+// Bytes after a PLY's last element may only be whitespace (some writers end with a
+// newline). Anything else means the header's counts do not match the body, and
+// reading on as if they did would drop faces without a word. Throws bad input at
+// the first such byte; `offset` is the offset of p[0] in the file.
+inline void check_trailing_bytes(const std::string& file, const char* p, size_t n, uint64_t offset,
+                                 const PlyElement& last) {
+  for (size_t i = 0; i < n; ++i) {
+    const char c = p[i];
+    if (c == ' ' || c == '\n' || c == '\t' || c == '\r' || c == '\f' || c == '\v') continue;
+    throw_bad_input(file, "byte " + std::to_string(offset + i),
+                    "data after the last element (the header declares " + std::to_string(last.count) + " " +
+                        last.name + "; are its counts wrong?)");
+  }
+}
 
 template <bool Swap>
 inline uint16_t load16(const char* p) {

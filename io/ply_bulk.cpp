@@ -69,8 +69,11 @@ bool PlyBulkReader::read(RawChunk& chunk, size_t max_bytes) {
     want = std::max<size_t>(max_bytes / vertex_record_, 1) * vertex_record_;
     want = size_t(std::min<uint64_t>(want, faces_begin_ - position_));
   } else {
-    if (!header_.face_element) {
+    if (!header_.face_element) {  // no faces: only whitespace may follow the vertices
       ended_ = true;
+      char tail[4096];
+      const size_t n = read_at(fd_, name_, position_, tail, size_t(std::min<uint64_t>(sizeof tail, file_size_ - position_)));
+      check_trailing_bytes(name_, tail, n, position_, header_.elements[header_.vertex_element]);
       return false;
     }
     want = std::max<size_t>(max_bytes, 1);
@@ -265,6 +268,9 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, MeshBatch& batch) {
       break;
     }
     pos += length;
+  }
+  if (faces_done_ == face_count_ && pos < chunk.size) {
+    check_trailing_bytes(name_, p + pos, chunk.size - pos, chunk.offset + pos, element);
   }
   if (chunk.last && faces_done_ < face_count_) {
     // The file ends exactly between records.

@@ -71,10 +71,30 @@ class PlyReader final : public MeshReader {
         else binary_skip<false>(element);
       }
     }
+    if (element_ == header_.elements.size() && !trailing_checked_) check_trailing();
     return !batch.vertices.empty() || !batch.triangles.empty();
   }
 
  private:
+  // After the last element, whitespace at most (ply_binary::check_trailing_bytes).
+  void check_trailing() {
+    trailing_checked_ = true;
+    const PlyElement& last = header_.elements.back();
+    if (header_.format == MeshFormat::ply_ascii) {
+      std::string_view token;
+      if (next_token(token)) {
+        throw_bad_input(name(), line_place(),
+                        "data after the last element (the header declares " + std::to_string(last.count) + " " +
+                            last.name + "; are its counts wrong?)");
+      }
+      return;
+    }
+    while (source_.fill(1)) {
+      check_trailing_bytes(name(), source_.data(), source_.available(), source_.offset(), last);
+      source_.consume(source_.available());
+    }
+  }
+
   const std::string& name() const { return source_.name(); }
   std::string byte_place(uint64_t offset) const { return "byte " + std::to_string(offset); }
   std::string line_place() const { return "line " + std::to_string(token_line_); }
@@ -437,6 +457,7 @@ class PlyReader final : public MeshReader {
   ByteSource source_;
   PlyHeader header_;
   MeshInfo info_;
+  bool trailing_checked_ = false;
   uint64_t vertex_count_ = 0;
   size_t element_ = 0;     // element being read
   uint64_t done_ = 0;      // records of it already read

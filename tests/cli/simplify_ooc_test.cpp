@@ -437,6 +437,15 @@ TEST(SimplifyOoc, BadInputExits3AndLeavesNothing) {
     f << "short";
   }
   expect_refused(dir, bad, "--ratio 0.5", 3, bad.string());
+  // A face count cut short in the header: the faces past it are data after the last
+  // element, not faces to drop without a word.
+  const auto tail = dir / "tail.ply";
+  ASSERT_EQ(run_command(q() + " gen " + tail.string() + " --faces 20000 --quiet"), 0);
+  std::ofstream(tail, std::ios::app) << "junk";
+  for (const char* args : {"--ratio 0.5 --in-core", "--ratio 0.5 --clusters 2 --in-core-faces 1000"}) {
+    expect_refused(dir, tail, args, 3, tail.string() + ": byte ");
+    expect_refused(dir, tail, args, 3, ": data after the last element");
+  }
 }
 
 // A patch whose halo cannot fit even for a small part: on a bipyramid every face is

@@ -144,6 +144,26 @@ TEST(BadInput, BinaryTruncationNamesOffsetAndWhatWasExpected) {
              "byte " + std::to_string(ply.face_offset(3)) + ": file ends inside face 3 of 4");
 }
 
+// More records than the header declares: a face count cut short would otherwise lose
+// the faces past it without a word. Whitespace after the last element is fine.
+TEST(BadInput, DataAfterTheLastElementNamesItsOffset) {
+  BinaryPly ply = binary_ply();
+  const std::string extra_face = ply.faces.substr(0, 13);
+  expect_bad(ply.bytes() + extra_face, "m.ply",
+             "byte " + std::to_string(ply.face_offset(4)) +
+                 ": data after the last element (the header declares 4 face; are its counts wrong?)");
+  expect_bad(testing::zstd_compress(ply.bytes() + "\n" + extra_face), "m.ply.zst",
+             "byte " + std::to_string(ply.face_offset(4) + 1) + ": data after the last element");
+  expect_bad(ascii_ply("0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 2 1\n"), "a.ply",
+             "line 15: data after the last element (the header declares 1 face");
+  TempDir dir;
+  for (const auto& [name, bytes] : std::vector<std::pair<std::string, std::string>>{
+           {"m.ply", ply.bytes() + "\n"}, {"a.ply", ascii_ply("0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n\n  \n")}}) {
+    testing::write_bytes(dir / name, bytes);
+    EXPECT_NO_THROW(testing::read_in_batches(dir / name, 3)) << name;
+  }
+}
+
 TEST(BadInput, BinaryIndexOutOfRangeNamesFaceAndOffset) {
   for (std::string type : {"int", "uint", "short"}) {
     BinaryPly ply = binary_ply(type);

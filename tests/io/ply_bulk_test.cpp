@@ -236,6 +236,33 @@ TEST(PlyBulk, BadRecordsFailExactlyLikeTheStreamingReader) {
   }
 }
 
+// Records past the header's counts (or any byte but whitespace after the last face):
+// the same message as the streaming reader, wherever the ranges end.
+TEST(PlyBulk, DataAfterTheLastFaceFailsExactlyLikeTheStreamingReader) {
+  TempDir dir;
+  for (const Layout& layout : layouts()) {
+    const std::string bytes = make_ply(layout);
+    const std::string face_line = std::string("element face ");
+    const size_t at = bytes.find(face_line) + face_line.size();
+    const size_t end = bytes.find('\n', at);
+    const uint64_t faces = std::stoull(bytes.substr(at, end - at));
+    // One face fewer in the header: the last face becomes data after the last element.
+    const std::string fewer = bytes.substr(0, at) + std::to_string(faces - 1) + bytes.substr(end);
+    for (const std::string& body : {fewer, bytes + "  \n#"}) {
+      auto path = dir / "t.ply";
+      testing::write_bytes(path, body);
+      const std::string expected = testing::bad_input_message(path);
+      ASSERT_NE(expected.find("data after the last element"), std::string::npos) << expected;
+      for (size_t max_bytes : {3, 13, 1 << 20}) {
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "range " << max_bytes;
+      }
+    }
+    auto path = dir / "w.ply";
+    testing::write_bytes(path, bytes + "\n");
+    for (size_t max_bytes : {3, 13, 1 << 20}) EXPECT_EQ(bulk_bad_input_message(path, max_bytes), "");
+  }
+}
+
 TEST(PlyBulk, EncodersMakeTheWritersBytes) {
   TempDir dir;
   IndexedMesh mesh = testing::small_mesh();
