@@ -172,6 +172,15 @@ struct ChunkMeta {
   // sum to its distinct vertices (each face is in one chunk), where their vertex
   // records count a vertex once per chunk it is in.
   double vertex_share = 0;
+  // The same per run (parts): a gather counts the vertices of the runs it reads with
+  // them before it reads them (patch_bytes), in fixed point (share_units) so the sum does
+  // not depend on the order of the runs.
+  std::array<double, kParts> run_share{};
+  static constexpr int kShareBits = 20;
+  static int64_t share_units(double share) { return std::llround(std::ldexp(share, kShareBits)); }
+  static uint64_t vertices_of(int64_t units) {
+    return uint64_t((units + (int64_t(1) << (kShareBits - 1))) >> kShareBits);
+  }
   // The id of the chunk's first face: tells its frame apart when read (read_runs).
   uint64_t first_fid = 0;
 };
@@ -336,10 +345,12 @@ struct MeshState {
   // The chunks' vertex_share summed in fixed point (units of 2^-20), so the sum does not
   // depend on the order chunks are written in.
   int64_t vertex_share_units = 0;
-  static constexpr int kShareBits = 20;
   // The distinct vertices of the faces (what the finish's memory rule counts,
   // in_core_finish_bytes); unreferenced input vertices are not in the state.
-  uint64_t vertices() const { return uint64_t((vertex_share_units + (int64_t(1) << (kShareBits - 1))) >> kShareBits); }
+  uint64_t vertices() const { return ChunkMeta::vertices_of(vertex_share_units); }
+  // Faces whose three corners are used by no other face (a soup's triangles): nothing
+  // collapses them, so the finish holds them all (set by the conversion).
+  uint64_t isolated_faces = 0;
   uint64_t blob_bytes_total = 0;
 };
 
@@ -359,7 +370,7 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
     c.frame.tag = meta.owner;
     state.chunks.push_back(c);
     state.faces += meta.faces;
-    state.vertex_share_units += std::llround(std::ldexp(meta.vertex_share, MeshState::kShareBits));
+    state.vertex_share_units += ChunkMeta::share_units(meta.vertex_share);
     state.blob_bytes_total += blob_size;
   }
   job.stage(stage).bytes_written += encoded->size();
@@ -450,8 +461,13 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           const Point& p0 = out.positions[t[0]];
           const Point& p1 = out.positions[t[1]];
           const Point& p2 = out.positions[t[2]];
-          for (uint32_t v : t) meta.vertex_share += 1.0 / double(std::max<uint32_t>(1, out.degrees[v]));
-          Box& part = meta.parts[ChunkMeta::part_of(j, n)];
+          const size_t run = ChunkMeta::part_of(j, n);
+          for (uint32_t v : t) {
+            const double share = 1.0 / double(std::max<uint32_t>(1, out.degrees[v]));
+            meta.vertex_share += share;
+            meta.run_share[run] += share;
+          }
+          Box& part = meta.parts[run];
           for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
         }
         for (size_t k = 0; k < nv; ++k) {
@@ -526,6 +542,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
   };
   std::mutex outs_mutex;
   std::vector<std::vector<Out>> outs;  // by transform result slot
+  uint64_t isolated_faces = 0;         // under outs_mutex
   size_t done = 0;
   engine::for_each_frame(
       job, scratch, "convert", "block frames", frames, mesh.block_record_size,
@@ -556,6 +573,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
         }
         std::sort(by_owner.begin(), by_owner.end());
         std::vector<Out> result;
+        uint64_t isolated = 0;
         for (size_t first = 0; first < by_owner.size();) {
           size_t last = first;
           while (last < by_owner.size() && by_owner[last].owner == by_owner[first].owner &&
@@ -564,11 +582,15 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
           std::vector<FaceRecord> fr;
           std::vector<VertexRecord> vr;
           double vertex_share = 0;
+          std::array<double, ChunkMeta::kParts> run_share{};
           for (size_t i = first; i < last; ++i) {
             const auto& f = faces[by_owner[i].index];
             fr.push_back({f.id, f.vertices, by_owner[i].owner, 0});
+            isolated += f.degree[0] == 1 && f.degree[1] == 1 && f.degree[2] == 1;
             for (int k = 0; k < 3; ++k) {
-              vertex_share += 1.0 / double(std::max<uint32_t>(1, f.degree[k]));
+              const double share = 1.0 / double(std::max<uint32_t>(1, f.degree[k]));
+              vertex_share += share;
+              run_share[ChunkMeta::part_of(i - first, last - first)] += share;
               VertexRecord r;
               r.gid = f.vertices[k];
               r.position = f.positions[k];
@@ -582,12 +604,14 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
                    vr.end());
           result.push_back({meta_of(by_owner[first].owner, fr, vr), make_blob(fr, vr)});
           result.back().meta.vertex_share = vertex_share;
+          result.back().meta.run_share = run_share;
           first = last;
         }
         // Hand the results to the sink through the records buffer's slot index.
         size_t slot;
         {
           std::lock_guard lock(outs_mutex);
+          isolated_faces += isolated;
           slot = outs.size();
           outs.push_back(std::move(result));
         }
@@ -606,6 +630,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
         job.progress(0.3 * double(++done) / double(frames.size()), "convert");
       },
       250);
+  state.isolated_faces = isolated_faces;
   finish_state(job, scratch, state);
 }
 
@@ -662,9 +687,15 @@ struct Gathered {
   // per gid either way (UniqueVertexRecords).
   std::vector<FaceRecord> faces;
   std::vector<VertexRecord> vertices;
-  uint64_t found_faces = 0;  // faces the gather read (= faces.size() unless over_limit)
-  uint64_t owned_faces = 0;  // of them, owned by the part
-  bool over_limit = false;   // more than the limit: nothing is held, found_faces is what was found
+  // Faces of the runs the gather read, and of the batch it did not read because it
+  // would have gone over the limit (= faces.size() unless over_limit), and the runs'
+  // vertex shares (ChunkMeta::run_share): both from the chunk metas, so the same on
+  // every run.
+  uint64_t found_faces = 0;
+  int64_t share_units = 0;
+  uint64_t owned_faces = 0;  // of the faces read, owned by the part
+  bool over_limit = false;   // more than the limit: nothing is held
+  uint64_t found_vertices() const { return ChunkMeta::vertices_of(share_units); }
 };
 
 // Which runs of a chunk (ChunkMeta::parts) a part's gather reads: bit k for run k.
@@ -776,50 +807,60 @@ struct RunCache {
   std::unordered_map<size_t, RunMask> held;                                // by chunk
   // A cached run is a blob with its own vertex records, up to 3 per face when its faces
   // share none (an input in random order): it is charged as that many lease faces.
-  static constexpr int64_t kCachedRunWeight =
-      (sizeof(FaceRecord) + 3 * sizeof(VertexRecord) + kPatchBytesPerFace - 1) / kPatchBytesPerFace;
-  int64_t room = 0;              // lease faces it may still take in this batch (under `mutex`)
+  static constexpr int64_t kCachedRunBytesPerFace =
+      (sizeof(FaceRecord) + 3 * sizeof(VertexRecord) + kPatchBytesPerFace - 1) / kPatchBytesPerFace *
+      kPatchBytesPerFace;
+  int64_t room = 0;              // lease bytes it may still take in this batch (under `mutex`)
   uint64_t faces = 0;            // faces it holds
 };
 
-// Appends a filtered blob's faces and vertex records to `g` (or, once over the limit,
-// only counts them).
-void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, uint64_t limit_faces,
-                 UniqueVertexRecords& unique_vertices) {
-  g.found_faces += v.faces;
+// Appends a filtered blob's faces and vertex records to `g` (over the limit: only
+// counts its owned faces).
+void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, UniqueVertexRecords& unique_vertices) {
   for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part.owner;
-  if (g.found_faces > limit_faces) g.over_limit = true;
   if (g.over_limit) return;
   g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
   for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
+}
+
+// The faces and vertex shares of a batch of runs, from the chunk metas.
+std::pair<uint64_t, int64_t> runs_size(const MeshState& state, const std::vector<RunRead>& reads) {
+  uint64_t faces = 0;
+  int64_t units = 0;
+  for (const RunRead& r : reads) {
+    const ChunkMeta& m = state.chunks[r.chunk].meta;
+    for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+      if (r.runs >> k & 1u) {
+        faces += run_faces(m.faces, k);
+        units += ChunkMeta::share_units(m.run_share[k]);
+      }
+  }
+  return {faces, units};
 }
 
 // Reads the given runs of the given chunks (one batch of frames through the job's I/O
 // thread) and appends their faces, and the vertex records those use, to `g`; the owner's
 // faces outside the part's region get kNotInPart. Runs the cache holds are taken from
 // it instead; of a frame read, the runs not read before (`read`: per chunk, including
-// this batch's) go to the cache while it has room. Once `g` would hold more than
-// `limit_faces` faces it holds nothing (over_limit) and only counts.
+// this batch's) go to the cache while it has room: what `limit_bytes` leaves beside
+// `planned_bytes` (the gather with this batch, patch_bytes) and what the cache holds.
+// Over the limit (g.over_limit, set by the caller) `g` holds nothing and only counts.
 void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const std::vector<RunRead>& reads,
-               const std::vector<RunMask>& read, const PatchPart& part, Gathered& g, uint64_t limit_faces,
-               UniqueVertexRecords& unique_vertices, RunCache& cache) {
+               const std::vector<RunMask>& read, const PatchPart& part, Gathered& g, uint64_t limit_bytes,
+               uint64_t planned_bytes, UniqueVertexRecords& unique_vertices, RunCache& cache) {
   std::vector<FrameRef> frames;
   // A chunk's frame is told apart by its first face id (faces are in one chunk each).
   std::unordered_map<uint64_t, RunRead> runs_of;
-  uint64_t asked_faces = 0;
   for (const RunRead& r : reads) {
     const auto held = cache.held.find(r.chunk);
     const RunMask cached = held == cache.held.end() ? 0 : RunMask(held->second & r.runs);
     const ChunkMeta& m = state.chunks[r.chunk].meta;
     for (size_t k = 0; k < ChunkMeta::kParts; ++k) {
-      if (!(cached >> k & 1u)) {
-        if (r.runs >> k & 1u) asked_faces += run_faces(m.faces, k);
-        continue;
-      }
+      if (!(cached >> k & 1u)) continue;
       Bytes& blob = cache.runs[r.chunk][k];
       const BlobView v = view_blob(blob.data(), blob.size());
       cache.faces -= v.faces;
-      gather_blob(v, part, g, limit_faces, unique_vertices);
+      gather_blob(v, part, g, unique_vertices);
       release_memory(blob);
     }
     if (cached) held->second &= RunMask(~cached);
@@ -828,9 +869,8 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
     frames.push_back(state.chunks[r.chunk].frame);
     runs_of.emplace(m.first_fid, RunRead{r.chunk, rest});
   }
-  if (g.over_limit) frames.clear();
   if (order_fuzz_seed()) shuffle(frames);
-  cache.room = int64_t(limit_faces) - int64_t(g.found_faces + asked_faces) - int64_t(RunCache::kCachedRunWeight * cache.faces);
+  cache.room = int64_t(limit_bytes) - int64_t(planned_bytes) - RunCache::kCachedRunBytesPerFace * int64_t(cache.faces);
   engine::for_each_frame(
       job, scratch, "epochs", "state frames", frames, 1,
       [&](const FrameHeader& header, Bytes& records, Lease&) {
@@ -848,8 +888,8 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
           const RunMask unread = RunMask(~read[chunk] & ~(held == cache.held.end() ? 0 : held->second));
           for (size_t k = 0; k < ChunkMeta::kParts; ++k) {
             const int64_t faces = int64_t(run_faces(v.faces, k));
-            if ((unread >> k & 1u) && faces > 0 && cache.room >= RunCache::kCachedRunWeight * faces) {
-              cache.room -= RunCache::kCachedRunWeight * faces;
+            if ((unread >> k & 1u) && faces > 0 && cache.room >= RunCache::kCachedRunBytesPerFace * faces) {
+              cache.room -= RunCache::kCachedRunBytesPerFace * faces;
               to_cache |= RunMask(1u << k);
             }
           }
@@ -909,7 +949,7 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
         cache.held[chunk] |= to_cache;
       },
       [&](const FrameHeader&, Bytes& records, Lease&) {
-        gather_blob(view_blob(records.data(), records.size()), part, g, limit_faces, unique_vertices);
+        gather_blob(view_blob(records.data(), records.size()), part, g, unique_vertices);
       },
       0);
   if (g.over_limit) {
@@ -1264,12 +1304,11 @@ struct Runner {
   // the next pass starts from them, so a split is found once, not every epoch.
   std::vector<std::vector<PatchPart>> owner_parts;
 
-  // A patch's lease per gathered face, from the state's vertices per face (a soup has 6
-  // times a welded mesh's).
-  uint64_t bytes_per_face = kPatchBytesPerFace;
+  // The least budget the in-core finish is known to need (0: none known), named by a
+  // patch's refusal when it is more than the patch's.
+  uint64_t finish_minimum = 0;
 
   void index_state(const MeshState& state) {
-    bytes_per_face = patch_bytes_per_face(state.faces, state.vertices());
     owner_box.assign(patches, Box{});
     owner_faces.assign(patches, 0);
     for (const auto& c : state.chunks) {
@@ -1295,13 +1334,17 @@ struct Runner {
   // while the BFS is blocked at vertices whose fans were not read, the runs that hold
   // those vertices (one batch of reads per stop; each run is read at most once). The
   // BFS goes on over each batch (PatchBfs) rather than starting over. What is read
-  // changes, never the patch. Holds at most `limit_faces` gathered faces (over that:
-  // `g.over_limit`, nothing held, no patch: nullopt).
+  // changes, never the patch. Holds at most `limit_bytes` (patch_bytes over the faces
+  // and vertex shares of the runs read): a batch that would take it over is not read
+  // (`g.over_limit`, nothing held, no patch: nullopt), but for the first, which is
+  // read and counted without being held (the part's owned faces).
   std::optional<PatchInput> gather_and_build(const MeshState& state, const PatchPart& part, int rings,
-                                             uint64_t limit_faces, Gathered& g, PhaseClock& clock) {
-    // Reserved up front at upper bounds (a face brings at most 3 vertex records):
-    // growth by doubling would hold the old and the new arrays at once (a spike outside
-    // the patch lease); untouched reserved pages cost no RSS.
+                                             uint64_t limit_bytes, Gathered& g, PhaseClock& clock) {
+    // The most faces it can hold (at most 3 vertex records each): arrays reserved up
+    // front at these upper bounds (growth by doubling would hold the old and the new
+    // arrays at once, a spike outside the patch lease); untouched reserved pages cost
+    // no RSS.
+    const uint64_t limit_faces = limit_bytes / kPatchBytesPerFace;
     g.faces.reserve(limit_faces);
     g.vertices.reserve(3 * limit_faces);
     UniqueVertexRecords unique_vertices(g.vertices);
@@ -1309,11 +1352,26 @@ struct Runner {
     std::vector<RunRead> reads = owned_runs(state, part);
     PatchBfs bfs(part.owner, rings, limit_faces);
     RunCache cache;
-    for (;;) {
+    for (bool first = true;; first = false) {
+      // Decided before the batch is read, from the metas: the same on every run.
+      const auto [batch_faces, batch_units] = runs_size(state, reads);
+      const uint64_t planned_faces = g.found_faces + batch_faces;
+      const int64_t planned_units = g.share_units + batch_units;
+      const uint64_t planned_bytes = patch_bytes(planned_faces, ChunkMeta::vertices_of(planned_units));
+      g.found_faces = planned_faces;
+      g.share_units = planned_units;
+      if (planned_bytes > limit_bytes) {
+        g.over_limit = true;
+        release_memory(g.faces);
+        release_memory(g.vertices);
+        if (!first) return std::nullopt;
+      }
       for (const RunRead& r : reads) read[r.chunk] |= r.runs;
-      read_runs(job, scratch, state, reads, read, part, g, limit_faces, unique_vertices, cache);
+      read_runs(job, scratch, state, reads, read, part, g, limit_bytes, planned_bytes, unique_vertices, cache);
       ++stats.gather_reads;
       clock.charge(kGather);
+      if (!g.over_limit && g.faces.size() != g.found_faces)
+        throw Error(ErrorKind::internal, "a gather read other faces than its runs hold");
       if (g.over_limit || g.owned_faces == 0) return std::nullopt;
       std::vector<Point> blocked;
       job.arena().execute([&] {
@@ -1347,18 +1405,19 @@ struct Runner {
       const int rings = this->rings();
       // What the gather will hold is not known before it ran: the lease is what a patch
       // may hold (or the whole state, if less), trimmed to what was gathered.
-      const uint64_t want = std::min(std::max<uint64_t>(1, state.faces) * bytes_per_face, patch_cap());
+      const uint64_t want =
+          std::min(std::max<uint64_t>(1, patch_bytes(state.faces, state.vertices())), patch_cap());
       Lease lease = job.governor().acquire(job.owner("patch"), want, want, [this] { return job.stopped(); });
       job.check();
       Gathered g;
-      std::optional<PatchInput> built = gather_and_build(state, part, rings, lease.bytes() / bytes_per_face, g, clock);
+      std::optional<PatchInput> built = gather_and_build(state, part, rings, lease.bytes(), g, clock);
       stats.gathered_faces_total += g.found_faces;
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
         if (g.owned_faces <= kSmallestPart) refuse_part(g);
         return false;
       }
-      lease.shrink_to(g.faces.size() * bytes_per_face);
+      lease.shrink_to(patch_bytes(g.found_faces, g.found_vertices()));
       const uint64_t owned_faces = g.owned_faces;
       g = {};
       stats.patch_faces_max = std::max<uint64_t>(stats.patch_faces_max, built->faces.size());
@@ -1408,11 +1467,12 @@ struct Runner {
   // would not make the patch fit.
   static constexpr uint64_t kSmallestPart = 2048;
 
-  // The gather stops once it holds too much, so the need is a lower bound.
+  // The gather stops once it holds too much, so the need is a lower bound; the budget
+  // named is at least the one the finish needs (finish_minimum).
   [[noreturn]] void refuse_part(const Gathered& g) const {
-    const uint64_t need = g.found_faces * bytes_per_face;
+    const uint64_t need = patch_bytes(g.found_faces, g.found_vertices());
     // patch_cap() is 3/4 of the job's capacity, which is the budget less the baseline and the trace.
-    const uint64_t minimum = need / 3 * 4 + job.governor().baseline() + job.held_for_run();
+    const uint64_t minimum = std::max(need / 3 * 4 + job.governor().baseline() + job.held_for_run(), finish_minimum);
     throw Error(ErrorKind::resource,
                 "a patch of " + std::to_string(g.owned_faces) + " owned faces and its " + std::to_string(rings()) +
                     "-ring halo (over " + std::to_string(g.found_faces) + " faces) needs over " + config::format_size(need) +
@@ -1545,6 +1605,21 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   st.scratch_epochs_start_bytes = scratch.bytes_on_disk();
 
   Runner runner{job, scratch, options, st};
+  // The finish holds at least the isolated faces (a soup's: nothing collapses them,
+  // each with its 3 vertices) beside what the rest of the mesh ends at (at most the
+  // target's faces): a budget that cannot hold that is refused now, not after epochs
+  // that cannot make the state fit (an unwelded soup ran two useless passes). The
+  // minimum named then runs: the epochs go on until the rest is within the target.
+  if (state->isolated_faces && !fits_in_core(state->faces, state->vertices())) {
+    const uint64_t isolated = state->isolated_faces;
+    const uint64_t faces = std::min(state->faces, isolated + st.target_faces);
+    const uint64_t bytes = uint64_t(double(in_core_finish_bytes(faces, 3 * isolated + (faces - isolated) / 2)) / 0.9);
+    runner.finish_minimum = bytes + job.held_for_run() + job.governor().baseline();
+    job.require_fits("the in-core finish of " + std::to_string(isolated) +
+                         " isolated faces (nothing collapses them) and up to " + std::to_string(faces - isolated) +
+                         " others",
+                     bytes);
+  }
   runner.patches = partition.clusters;
   runner.chunk_faces = chunk_faces;
   // A pass's halo: kTrustSpread rings per round of its plan, the decision radius, 2 to

@@ -40,11 +40,15 @@
 //   them reads no frame twice. What is read changes, never the patch.
 // - 'Halo too small' (an owned inexact candidate or an owned face with an untrusted
 //   vertex): the ring count grows and the patch is redone (counted: halo_redos).
-// - Memory: a patch runs under one governor lease of patch_bytes_per_face per gathered
-//   face (kPatchBytesPerFace, more for a state with many vertices per face), at most 3/4
-//   of the capacity (taken whole before the gather, trimmed after it); the gather stops
-//   holding faces, and reading further batches, once it finds more than the lease
-//   covers. Such a patch is split: its owner runs as parts (the
+// - Memory: a patch runs under one governor lease, at most 3/4 of the capacity (taken
+//   whole before the gather, trimmed after it), measured by patch_bytes over the faces
+//   and distinct vertices the gather holds. Both are known from the chunk metas before
+//   a batch is read (faces per run, vertex share per run), so a batch that would take
+//   the gather over its lease is not read: the gather stops there (over_limit), and
+//   what it counted (gathered_faces_total, the refusal's "over N faces") is the same
+//   on every run, whatever the I/O's timing left in its run cache. (A part's first
+//   batch, its owned runs, is read and counted without being held, for its owned
+//   faces.) Such a patch is split: its owner runs as parts (the
 //   faces whose centroid lies in each half of a region, halved again as needed), a
 //   finer partition with the same output; a part of at most 2048 owned faces that
 //   still does not fit is refused with the minimum budget (Error resource). The
@@ -188,12 +192,15 @@ inline constexpr uint64_t kInCoreBytesPerFace = 170;
 inline constexpr uint64_t kInCoreBytesPerExtraVertex = 380;
 // A patch's vertices beyond half a vertex per face (kPatchBytesPerFace's meshes): each
 // is a gathered record (136 B), its PatchInput entries (~130) and the decimator's
-// (~147) while a soup's patch is built and run. The state's ratio is used for every
-// patch (a mesh that is partly soup may still hold more in its soup's patches).
+// (~147) while a soup's patch is built and run.
 inline constexpr uint64_t kPatchBytesPerExtraVertex = 400;
-inline uint64_t patch_bytes_per_face(uint64_t faces, uint64_t vertices) {
+// What a gather of `faces` faces and `vertices` distinct vertices may hold: the patch
+// lease's measure. Each gather counts its own faces and vertices (their chunks' run
+// shares, ChunkMeta), so a soup-heavy patch of a partly welded mesh pays for its
+// vertices where the state's average would not.
+inline uint64_t patch_bytes(uint64_t faces, uint64_t vertices) {
   const uint64_t extra = vertices > faces / 2 ? vertices - faces / 2 : 0;
-  return kPatchBytesPerFace + (faces ? extra * kPatchBytesPerExtraVertex / faces : 0);
+  return faces * kPatchBytesPerFace + extra * kPatchBytesPerExtraVertex;
 }
 // The finish's lease for a state of `faces` faces and at most `vertices` vertices.
 inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {

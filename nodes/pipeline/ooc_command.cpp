@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <cstdlib>
 
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
@@ -15,11 +16,24 @@
 
 namespace qemflow::nodes::pipeline {
 
+namespace {
+
+// The governor's baseline: the process's own RSS and a margin, measured, so it moves by
+// some 100 KB between runs, and every budget-derived size (patch leases, splits) with
+// it. QEMFLOW_BASELINE=BYTES (tests, diagnosis; read once) sets it, so two runs of one
+// command make the same decisions and the same report counts (epochs.hpp).
+uint64_t baseline_bytes() {
+  static const char* fixed = std::getenv("QEMFLOW_BASELINE");
+  return fixed ? std::strtoull(fixed, nullptr, 10) : engine::measure_baseline();
+}
+
+}  // namespace
+
 nlohmann::json run_ooc_command(const OocCommand& command) {
   engine::tune_allocator();
   uint64_t budget = command.mem_budget;
   if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
-  engine::Governor governor(budget, engine::measure_baseline());
+  engine::Governor governor(budget, baseline_bytes());
   engine::ProgressBar bar(command.quiet);
   engine::JobSettings settings;
   settings.threads = command.threads;

@@ -4,6 +4,7 @@
 // input / full scratch ending with the right exit code and nothing left behind.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -38,11 +39,12 @@ std::filesystem::path generate(const TempDir& dir, const std::string& gen_args) 
 // `qemflow simplify MESH DIR/out.ply ARGS` out of core with its scratch in DIR, in a
 // child process (so the report's peak RSS, VmHWM, is the run's own); returns the report.
 // With `timeout_seconds`, under `timeout`: a hang fails the test instead of stalling the suite.
+// `env`: a prefix for the command (e.g. "QEMFLOW_FUZZ_ORDER=1 ").
 nlohmann::json simplify_with_report(const TempDir& dir, const std::filesystem::path& mesh, const std::string& args,
-                                    int timeout_seconds = 0) {
+                                    int timeout_seconds = 0, const std::string& env = "") {
   const auto report = dir / "r.json";
   const std::string timeout = timeout_seconds ? "timeout " + std::to_string(timeout_seconds) + " " : "";
-  run_ok(timeout + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " " + args +
+  run_ok(env + timeout + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " " + args +
          " --quiet --report " + report.string() + " --scratch " + dir.path().string());
   return read_json(report);
 }
@@ -540,6 +542,95 @@ TEST(SimplifyOoc, UnweldedSoupIsSizedByItsVertices) {
   const auto welded = simplify_with_report(dir, input, "--ratio 0.01 --mem-budget 64M");
   EXPECT_EQ(welded["output_faces"].get<uint64_t>(), 800u);
   EXPECT_LE(welded["peak_rss_bytes"].get<uint64_t>(), 64ull << 20);
+}
+
+// `qemflow gen DIR/blob.ply --faces FACES` with the faces whose centroid lies in the
+// lowest `soup_fraction` of x given their own 3 vertices each (isolated triangles
+// under --no-weld: nothing collapses them), the rest welded as generated: a mesh that
+// is part soup, part surface, its soup in one region (so in few patches).
+std::filesystem::path mixed_soup_mesh(const TempDir& dir, uint64_t faces, double soup_fraction) {
+  const io::IndexedMesh mesh = io::read_mesh(generate(dir, "--faces " + std::to_string(faces)));
+  std::vector<double> xs;
+  for (const Triangle& t : mesh.triangles)
+    xs.push_back((mesh.vertices[t[0]][0] + mesh.vertices[t[1]][0] + mesh.vertices[t[2]][0]) / 3);
+  std::vector<double> sorted = xs;
+  std::nth_element(sorted.begin(), sorted.begin() + ptrdiff_t(soup_fraction * double(xs.size())), sorted.end());
+  const double cut = sorted[size_t(soup_fraction * double(xs.size()))];
+  io::IndexedMesh mixed;
+  mixed.vertices = mesh.vertices;  // the welded part's (the soup's corners go unused)
+  for (size_t f = 0; f < mesh.triangles.size(); ++f) {
+    if (xs[f] >= cut) {
+      mixed.triangles.push_back(mesh.triangles[f]);
+      continue;
+    }
+    const uint64_t first = mixed.vertices.size();
+    for (uint64_t v : mesh.triangles[f]) mixed.vertices.push_back(mesh.vertices[v]);
+    mixed.triangles.push_back({first, first + 1, first + 2});
+  }
+  const auto path = dir / "mixed.ply";
+  io::write_mesh(path, mixed);
+  return path;
+}
+
+// The baseline fixed (QEMFLOW_BASELINE, ooc_command.cpp): every budget-derived size is
+// then the same on every run.
+const std::string kFixedBaseline = "QEMFLOW_BASELINE=" + std::to_string(32ull << 20) + " ";
+
+// A mesh that is part soup (20% of 100k faces, isolated) and part surface: the finish
+// holds all of the soup. A budget too small for that is refused before the epochs
+// (review8: the soup was refused only after the epochs had run, 44 CPU-s on 300k faces,
+// and the minimum a patch's refusal named was only a lower bound), naming a minimum
+// that then runs, under it, with the in-core output; its patches' leases count their
+// own vertices (patch_bytes over the runs' vertex shares), soup-heavy ones included.
+TEST(SimplifyOoc, MixedSoupIsRefusedUpFrontAndItsNamedMinimumRuns) {
+  TempDir dir;
+  const auto mesh = mixed_soup_mesh(dir, 100000, 0.2);
+  const std::string args = "--ratio 0.01 --no-weld";
+  std::string out;
+  const int rc = run_command(kFixedBaseline + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+                                 " " + args + " --mem-budget 52M --quiet --scratch " + dir.path().string(),
+                             &out);
+  ASSERT_EQ(rc, 4) << out;
+  EXPECT_NE(out.find("isolated faces"), std::string::npos) << "not refused up front: " << out;
+  const std::string named = "the minimum budget is ";
+  const size_t at = out.find(named);
+  ASSERT_NE(at, std::string::npos) << out;
+  ASSERT_NE(out.find(" MiB", at), std::string::npos) << out;
+  // Printed to 4 digits: the named value, rounded up by what the rounding may have taken.
+  const double minimum_mib = std::stod(out.substr(at + named.size())) + 0.01;
+  const auto r = simplify_with_report(dir, mesh, args + " --mem-budget " + std::to_string(minimum_mib) + "M",
+                                      0, kFixedBaseline);
+  EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
+  EXPECT_LE(r["peak_rss_bytes"].get<double>(), minimum_mib * (1 << 20));
+  expect_out_equals_in_core(dir, mesh, args);
+}
+
+// Over-limit decisions and every gather count come from the chunk metas before a
+// batch is read (epochs.hpp): two runs, and runs whose reads come in a fuzzed order,
+// report the same counts (review8: what the run cache held could change
+// gathered_faces_total and a refusal's "over N faces"), and the same in-core output.
+// A shuffled input with two clusters under a small budget: parts over their leases
+// in later batches, and split.
+TEST(SimplifyOoc, GatherCountsAreTheSameOnEveryRun) {
+  TempDir dir;
+  const auto mesh = generate(dir, "--faces 100000 --shuffle 1");
+  const std::string args = "--ratio 0.01 --clusters 2 --in-core-faces 20000 --mem-budget 52M";
+  const char* counts[] = {"gathered_faces_total", "patch_faces_total", "owned_faces_total", "gather_reads",
+                          "patch_splits", "halo_redos", "out_of_core_epochs", "largest_patch_faces"};
+  nlohmann::json first;
+  for (const char* seed : {"", "", "1"}) {
+    SCOPED_TRACE(std::string("QEMFLOW_FUZZ_ORDER=") + seed);
+    const std::string env = kFixedBaseline + (*seed ? std::string("QEMFLOW_FUZZ_ORDER=") + seed + " " : "");
+    const auto r = simplify_with_report(dir, mesh, args, 0, env);
+    if (first.is_null()) {
+      first = r;
+      EXPECT_GE(r["patch_splits"].get<int>(), 1);
+      expect_out_equals_in_core(dir, mesh, "--ratio 0.01");
+      continue;
+    }
+    for (const char* count : counts) EXPECT_EQ(r[count], first[count]) << count;
+    EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply"));
+  }
 }
 
 TEST(SimplifyOoc, FullScratchIsAResourceErrorAndLeavesNothing) {
