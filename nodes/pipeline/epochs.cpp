@@ -806,7 +806,7 @@ struct RunCache {
   std::unordered_map<size_t, std::array<Bytes, ChunkMeta::kParts>> runs;  // by chunk
   std::unordered_map<size_t, RunMask> held;                                // by chunk
   // A cached run is a blob with its own vertex records, up to 3 per face when its faces
-  // share none (an input in random order): it is charged as that many lease faces.
+  // share none (an input in random order): it is charged as many lease faces' bytes.
   static constexpr int64_t kCachedRunBytesPerFace =
       (sizeof(FaceRecord) + 3 * sizeof(VertexRecord) + kPatchBytesPerFace - 1) / kPatchBytesPerFace *
       kPatchBytesPerFace;
@@ -1609,7 +1609,9 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // each with its 3 vertices) beside what the rest of the mesh ends at (at most the
   // target's faces): a budget that cannot hold that is refused now, not after epochs
   // that cannot make the state fit (an unwelded soup ran two useless passes). The
-  // minimum named then runs: the epochs go on until the rest is within the target.
+  // minimum named then runs: the epochs go on until the state fits, at the latest once
+  // the rest is within the target (if the rest stops above it, the finish's own check
+  // below refuses with what the state then needs).
   if (state->isolated_faces && !fits_in_core(state->faces, state->vertices())) {
     const uint64_t isolated = state->isolated_faces;
     const uint64_t faces = std::min(state->faces, isolated + st.target_faces);

@@ -51,8 +51,14 @@
 //   faces.) Such a patch is split: its owner runs as parts (the
 //   faces whose centroid lies in each half of a region, halved again as needed), a
 //   finer partition with the same output; a part of at most 2048 owned faces that
-//   still does not fit is refused with the minimum budget (Error resource). The
-//   counts are in the report (patch_splits).
+//   still does not fit is refused with the minimum budget (Error resource; a lower
+//   bound: the gather stopped where it went over). The counts are in the report
+//   (patch_splits).
+// - The finish holds at least the state's isolated faces (each face whose corners no
+//   other face uses: nothing collapses them), counted by the conversion: a budget
+//   whose finish cannot hold them beside the target's faces is refused before the
+//   epochs (Error resource, naming the budget that holds them: the epochs then go on
+//   until the state fits, at the latest once the rest is within the target).
 // - All scratch and output I/O goes through the job's I/O thread.
 // - Order independence: a gather's records arrive in completion order (the I/O's
 //   timing), so a vertex's record may come several times, once per exporting patch, in
@@ -64,6 +70,10 @@
 //     bit-equal (decimator.hpp), and all copies of a repeated vertex record a gather
 //     reads must agree as above; otherwise Error(internal) / a
 //     logic_error naming the gid (exit 1).
+//   QEMFLOW_BASELINE=BYTES (ooc_command.cpp): the governor's baseline, instead of the
+//     process's RSS at its start plus a margin, which moves by ~100 KB between runs and
+//     every budget-derived size with it: with it fixed, two runs of a command split the
+//     same parts and report the same counts.
 //   QEMFLOW_FUZZ_ORDER=SEED: each gather reads its frames, and the first state holds its
 //     chunks, in a seeded pseudo-random order (what the I/O's timing may do), and each
 //     patch build drops a seeded third of the carried bests (as a copy without one
