@@ -112,6 +112,9 @@ bool repeated(const Triangle& t) { return t[0] == t[1] || t[1] == t[2] || t[0] =
 constexpr uint64_t bytes_per_input_element = 160;
 constexpr uint64_t min_input_lease = 64 * bytes_per_input_element;
 constexpr uint64_t max_input_lease = 4ull << 20;
+// How many faces ahead the face loops prefetch their vertex positions: enough to
+// cover a miss to memory at a few ns a face.
+constexpr size_t prefetch_faces_ahead = 16;
 
 struct Box {
   Point min{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
@@ -675,6 +678,7 @@ class Loader {
     auto& xyz = mesh_.vertices.resident_xyz;
     if (floats) {
       xyz.resize(3 * vertex_count);
+      advise_huge_pages(xyz.data(), xyz.data() + xyz.size());
     } else {
       positions.resize(vertex_count);
     }
@@ -744,7 +748,22 @@ class Loader {
       item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
       item.cells.resize(batch.triangles.size());
       if (verbatim_triangles()) {
-        for (size_t i = 0; i < batch.triangles.size(); ++i) {
+        const size_t faces = batch.triangles.size();
+        for (size_t i = 0; i < faces; ++i) {
+          // The positions a face reads are scattered over the whole vertex array:
+          // ask for a later face's while this one's are resolved, so the cache
+          // misses overlap instead of stalling one after another.
+          if (i + prefetch_faces_ahead < faces) {
+            for (uint64_t v : batch.triangles[i + prefetch_faces_ahead]) {
+              if (v < vertex_count) {
+                if (floats) {
+                  __builtin_prefetch(xyz.data() + 3 * v);
+                } else {
+                  __builtin_prefetch(positions.data() + v);
+                }
+              }
+            }
+          }
           const Triangle& t = batch.triangles[i];
           for (uint64_t v : t) {
             if (v >= vertex_count) index_out_of_range(input_.path, batch.first_triangle + i, v, vertex_count);
@@ -1078,6 +1097,7 @@ class Loader {
     const bool floats = verbatim_triangles() && box_.float_exact && bool(hooks_.float_vertices);
     UninitializedVector<Point> pair(floats ? 0 : 2 * chunk);  // chunks c and c+1
     UninitializedVector<float> pair_xyz(floats ? 6 * chunk : 0);
+    advise_huge_pages(pair_xyz.data(), pair_xyz.data() + pair_xyz.size());
     auto position = [&](uint64_t at) -> Point {
       if (floats) return {pair_xyz[3 * at], pair_xyz[3 * at + 1], pair_xyz[3 * at + 2]};
       return pair[at];
@@ -1144,7 +1164,22 @@ class Loader {
                 records.resize(n * (size + sizeof(uint32_t)));
                 const std::byte* ids_at = records.data() + sizeof(uint32_t);
                 auto* cells = reinterpret_cast<uint32_t*>(records.data() + n * size);
+                const uint64_t pair_vertices = floats ? pair_xyz.size() / 3 : pair.size();
                 for (uint64_t i = 0; i < n; ++i, ids_at += size) {
+                  if (i + prefetch_faces_ahead < n) {  // as in load_resident
+                    uint32_t ahead[3];
+                    std::memcpy(ahead, ids_at + prefetch_faces_ahead * size, sizeof ahead);
+                    for (uint32_t v : ahead) {
+                      const uint64_t at = uint64_t(v) - first;  // wraps past the end when below
+                      if (at < pair_vertices) {
+                        if (floats) {
+                          __builtin_prefetch(pair_xyz.data() + 3 * at);
+                        } else {
+                          __builtin_prefetch(pair.data() + at);
+                        }
+                      }
+                    }
+                  }
                   uint32_t ids[3];
                   std::memcpy(ids, ids_at, sizeof ids);
                   cells[i] = mesh_.grid.cell_of(

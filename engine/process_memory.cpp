@@ -61,6 +61,13 @@ const void* release_pages(const void* begin, const void* end) {
   return reinterpret_cast<const void*>(to);
 }
 
+void advise_huge_pages(const void* begin, const void* end) {
+  constexpr uintptr_t huge = 2 << 20;
+  const uintptr_t from = (uintptr_t(begin) + huge - 1) & ~(huge - 1), to = uintptr_t(end) & ~(huge - 1);
+  if (to <= from) return;
+  madvise(reinterpret_cast<void*>(from), to - from, MADV_HUGEPAGE);  // advice: a failure keeps small pages
+}
+
 uint64_t measure_baseline(uint64_t margin) { return resident_bytes() + margin; }
 
 }  // namespace qemflow::engine

@@ -37,6 +37,13 @@ void trim_allocator();
 // buffer is released front to back (no page straddling two calls is left behind).
 const void* release_pages(const void* begin, const void* end);
 
+// Asks for transparent huge pages over the whole 2 MiB pages inside [begin, end) of a
+// buffer not yet touched (madvise MADV_HUGEPAGE; advice: refused, the buffer keeps
+// small pages). For big arrays read at random (vertex positions by index): a 4 KiB
+// page per lookup misses the TLB, and each page first touched is its own fault.
+// Resident memory stays within the buffer's own mapping.
+void advise_huge_pages(const void* begin, const void* end);
+
 // The process's own footprint to reserve as the governor's baseline: RSS now plus a
 // margin for what grows later without a lease (thread stacks touched by work, zstd
 // contexts, allocator slack, trace buffers). `margin` defaults to 24 MiB.
