@@ -989,7 +989,32 @@ void PatchDecimator::prepare_round() { prepare(nullptr); }
 
 void PatchDecimator::prepare_round(const RoundCut& cut) { prepare(&cut.key); }
 
-void PatchDecimator::prepare(const EdgeKey* cut) {
+void PatchDecimator::prepare_owned_summary_round() {
+  prepare(nullptr, !fowned_.empty() || std::any_of(vflag_.begin(), vflag_.end(),
+                                                   [](uint8_t f) { return !(f & (kOwned | kDead)); }));
+  final_ = true;
+}
+
+std::vector<uint8_t> PatchDecimator::near_owned() const {
+  std::vector<uint8_t> dist(pos_.size(), static_cast<uint8_t>(kOwnedSummaryRadius + 1));
+  std::vector<uint32_t> frontier;
+  auto seed = [&](uint32_t v) {
+    if (dist[v] == 0) return;
+    dist[v] = 0;
+    frontier.push_back(v);
+  };
+  for (uint32_t v = 0; v < pos_.size(); ++v)
+    if ((vflag_[v] & (kOwned | kDead)) == kOwned) seed(v);
+  for (size_t f = 0; f < fv_.size(); ++f)
+    if (falive_[f] && (fowned_.empty() || fowned_[f]))
+      for (uint32_t v : fv_[f]) seed(v);
+  spread_distances(kOwnedSummaryRadius, std::move(frontier), dist);
+  for (uint8_t& d : dist) d = d <= kOwnedSummaryRadius;
+  return dist;
+}
+
+void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
+  if (final_) throw std::logic_error("PatchDecimator: prepared after prepare_owned_summary_round");
   if (fv_.size() > 4096 && faces_alive_ * 2 < fv_.size()) compact_storage();
   const size_t nv = pos_.size();
   // The touched and dirty vertices are found by their flags, not gathered in lists:
@@ -1026,6 +1051,8 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
     }
   });
   if (!verify_restored_.empty()) verify_restored_bests();
+  // The touched vertices' lists are compact now: the rings below see live faces only.
+  const std::vector<uint8_t> near = near_owned_only ? near_owned() : std::vector<uint8_t>();
   // A stale vertex was skipped by a round with a cut >= stale_floor_ because all its
   // edges cost more; while untouched its edge costs stay, so under a cut <= that
   // floor it would be skipped again.
@@ -1034,7 +1061,7 @@ void PatchDecimator::prepare(const EdgeKey* cut) {
   // The dirty vertices: every vertex with dirty_ != 0 now (the loop below leaves it
   // non-zero, 1 or stale, at each of them, and writes no other vertex's).
   parallel_over_with(nv, scratch, [&](size_t vi, Scratch& s) {
-    if (!dirty_[vi]) return;
+    if (!dirty_[vi] || (near_owned_only && !near[vi])) return;
     const uint32_t v = static_cast<uint32_t>(vi);
     // A stale vertex has no cached best.
     const bool stale = dirty_[v] >= kDirtyStale;
@@ -1185,12 +1212,17 @@ uint64_t PatchDecimator::owned_face_count() const {
 
 void PatchDecimator::untrusted_distances(int radius, std::vector<uint8_t>& dist) const {
   dist.assign(pos_.size(), static_cast<uint8_t>(radius + 1));
-  std::vector<uint32_t> frontier, next;
+  std::vector<uint32_t> frontier;
   for (uint32_t v = 0; v < pos_.size(); ++v)
     if ((vflag_[v] & (kUntrusted | kDead)) == kUntrusted) {
       dist[v] = 0;
       frontier.push_back(v);
     }
+  spread_distances(radius, std::move(frontier), dist);
+}
+
+void PatchDecimator::spread_distances(int radius, std::vector<uint32_t> frontier, std::vector<uint8_t>& dist) const {
+  std::vector<uint32_t> next;
   for (uint8_t d = 1; d <= radius && !frontier.empty(); ++d) {
     next.clear();
     for (uint32_t v : frontier)
@@ -1247,6 +1279,7 @@ void PatchDecimator::collapse(const Candidate& c, uint64_t list_at) {
 }
 
 uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
+  if (final_) throw std::logic_error("PatchDecimator: apply_cut after prepare_owned_summary_round");
   // The chosen candidates, kept in place at the front of candidates_ (no copy).
   size_t chosen_count = 0;
   for (const auto& c : candidates_) {
@@ -1333,7 +1366,7 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     out.degrees.push_back(degree);
     out.trusted.push_back((vflag_[v] & kUntrusted) ? 0 : 1);
     out.untrusted_vertices += (vflag_[v] & kUntrusted) ? 1 : 0;
-    if (bests_exact_) {
+    if (bests_exact_ && (owned_only || !final_)) {
       // trust_dist_ is the last prepare's (rings to the untrusted set, capped above
       // kTrustSpread >= kBestRadius; empty: nothing untrusted).
       const bool exact = trust_dist_.empty() || trust_dist_[v] > kBestRadius;

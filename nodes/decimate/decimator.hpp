@@ -91,6 +91,9 @@ inline constexpr int kInitialQuadricRadius = 2;
 // Rings best(v) reads (the validity and cost of every edge at v): a best edge computed
 // where every vertex within this many rings is trusted is the global one.
 inline constexpr int kBestRadius = 2;
+// PatchDecimator::prepare_owned_summary_round's rings around the owned part: 3 are read
+// (an owned candidate's endpoints' 1-ring neighbours' partners' bests), 2 to spare.
+inline constexpr int kOwnedSummaryRadius = 5;
 // QEMFLOW_VERIFY_CARRIED=1 (see the contract): checks carried state (here: restored
 // bests; the out-of-core pipeline also checks that every copy of a repeated vertex
 // record agrees). Read once per process.
@@ -240,6 +243,16 @@ class PatchDecimator {
   // It skips the validity checks of vertices whose every edge costs more than the cut
   // (they are refreshed in full by the next round that needs them).
   void prepare_round(const RoundCut& cut);
+  // prepare_round() for a patch's last step (out of core: its summary, owned candidates
+  // and extract), when nothing collapses afterwards: refreshes only the vertices within
+  // kOwnedSummaryRadius rings of the owned part (owned vertices and the corners of owned
+  // faces). An owned candidate's status reads bests within 3 rings of its kept vertex
+  // (partners of its endpoints' 1-ring neighbours), and extract() exports bests only for
+  // owned faces' corners, so summarize(), owned_candidates() and extract() give exactly
+  // prepare_round()'s results; the outer halo, which only kept untrusted state away,
+  // is not evaluated again. Afterwards the decimator is final: a further prepare or
+  // apply_cut throws std::logic_error, and extract(false) carries no bests.
+  void prepare_owned_summary_round();
   RoundSummary summarize() const;
   // Owned candidates of the prepared round, sorted by key.
   // Every candidate of the prepared round (owned or not, exact or not), sorted by key.
@@ -294,7 +307,10 @@ class PatchDecimator {
   void verify_restored_bests();
   void compute_quadrics();
   void compact_storage();
-  void prepare(const EdgeKey* cut);
+  void prepare(const EdgeKey* cut, bool near_owned_only = false);
+  // prepare_owned_summary_round's domain: 1 for vertices within kOwnedSummaryRadius rings
+  // of an owned vertex or an owned face's corner.
+  std::vector<uint8_t> near_owned() const;
   void refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut);
   void update_border(uint32_t v, Scratch& s);
   // s.fan: v's neighbours with their corners (s.next / s.prev from fan_links).
@@ -332,6 +348,9 @@ class PatchDecimator {
   void compact_list(uint32_t v);
   // Rings (capped at `radius` + 1) from the untrusted set, in the current mesh.
   void untrusted_distances(int radius, std::vector<uint8_t>& dist) const;
+  // Lowers `dist` (capped at `radius` + 1) to the rings from `frontier`, the vertices
+  // at 0, over the live faces.
+  void spread_distances(int radius, std::vector<uint32_t> frontier, std::vector<uint8_t>& dist) const;
   void spread_untrusted(int radius);
 
   DecimateParams params_;
@@ -381,6 +400,9 @@ class PatchDecimator {
   std::vector<uint8_t> verify_restored_;
   // The last step was a plain prepare_round: every best_ is exact (extract carries them).
   bool bests_exact_ = false;
+  // prepare_owned_summary_round ran: bests are exact only near the owned part; nothing
+  // may be prepared or collapsed any more.
+  bool final_ = false;
   std::vector<uint8_t> fowned_;      // per face, empty when all owned
   std::vector<uint8_t> passthrough_owned_;
   std::vector<uint8_t> trust_dist_;  // round scratch: rings to the untrusted set

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <ctime>
 #include <cstddef>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <deque>
@@ -1433,7 +1434,7 @@ struct Runner {
         clock.charge(kSetup);
         run_patch_plan(d, plan, clock, stats.first_round_refreshes);
         clock.charge(kRounds);
-        d.prepare_round();
+        d.prepare_owned_summary_round();
         // Without rounds the summary's prepare is the first.
         if (plan.cuts.empty()) stats.first_round_refreshes += d.refreshes();
         summary = d.summarize();
