@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <bit>
+#include <cmath>
 #include <cstring>
 
 #include "mesh_fixtures.hpp"
@@ -12,7 +13,8 @@
 namespace qemflow::nodes {
 namespace {
 
-// A noisy sphere as one patch that owns the faces whose centroid has x < -0.4 (a cap),
+// A noisy sphere as one patch that owns the faces whose centroid has x in a narrow band
+// (most owned candidates then read bests outside the owned faces' corners),
 // with the vertices of x > 0.85 given as incomplete (untrusted state at the far side,
 // as a halo's edge has).
 PatchInput capped_sphere_patch() {
@@ -30,7 +32,7 @@ PatchInput capped_sphere_patch() {
     in.face_gids.push_back(f);
     double x = 0;
     for (uint64_t v : t) x += m.points[v][0] / 3;
-    in.owned_face.push_back(x < -0.4);
+    in.owned_face.push_back(std::abs(x + 0.3) < 0.04);
     for (uint64_t v : t)
       if (first_face[v] < 0) first_face[v] = int64_t(f);
   }
@@ -64,7 +66,7 @@ TEST(DecimateOwnedSummary, EqualsAFullPrepareOnTheOwnedPartAndRefreshesLess) {
   EXPECT_LT(2 * (near.refreshes() - near_before), full.refreshes() - full_before);
 
   const RoundSummary a = full.summarize(), b = near.summarize();
-  EXPECT_GT(a.candidates, 50u);
+  EXPECT_GT(a.candidates, 20u);
   EXPECT_EQ(a.candidates, b.candidates);
   EXPECT_EQ(a.candidate_faces, b.candidate_faces);
   EXPECT_EQ(a.inexact_candidates, b.inexact_candidates);
