@@ -38,6 +38,8 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <mutex>
+#include <utility>
 #include <vector>
 
 #include "engine/job.hpp"
@@ -206,11 +208,50 @@ LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesyst
 // buffer is read with room for header.count × out_record_size bytes, so that the
 // transform can grow it to that (resize) and write there rather than into a new
 // buffer; leave it off when transform makes a new one (the room would go unused).
+//
+// Buffers an item leaves behind (its records, unless its sink moved them away) are read
+// into again by a later item instead of being freed: a fresh buffer is fresh pages,
+// faulted in one by one (most of a re-encode's page faults were those). They are kept
+// in a FramePool: the pass's own, or the caller's (`pool`), which keeps them across
+// calls (many calls of a few frames each). A kept buffer stays covered: its capacity is
+// split off the item's lease into the pool's, and the item that takes it asks the
+// governor for the rest of its size only. The bytes a kept buffer holds are not
+// released, so they would not wake a pump parked for memory: the sink wakes the
+// governor's waiters after keeping one, and the pump's next step keeps only the one
+// buffer it takes and frees the others, so a parked pump holds at most that one.
+// A caller's pool must be cleared (or destroyed) before the caller waits for memory
+// other than through a pass.
+class FramePool {
+ public:
+  struct Kept {
+    Lease lease;  // covers buffer.capacity(); declared first, so released last
+    Bytes buffer;
+  };
+  ~FramePool() { clear(); }
+  // Frees every kept buffer, each before its lease.
+  void clear() {
+    std::lock_guard lock(mutex_);
+    kept_.clear();
+  }
+  // Every kept buffer out of the pool (the caller frees what it does not use).
+  std::vector<Kept> take_all() {
+    std::lock_guard lock(mutex_);
+    return std::exchange(kept_, {});
+  }
+  // Keeps `buffer` under `lease`, unless `max_kept` are kept already (false: nothing
+  // moved).
+  bool keep(Bytes& buffer, Lease& lease, size_t max_kept = 4);
+
+ private:
+  std::mutex mutex_;
+  std::vector<Kept> kept_;
+};
+
 using FrameUse = std::function<void(const FrameHeader&, Bytes& records, Lease& lease)>;
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size,
                     const FrameUse& transform, const FrameUse& sink, uint32_t out_record_size,
-                    bool ordered = false, bool in_place = false);
+                    bool ordered = false, bool in_place = false, FramePool* pool = nullptr);
 
 // Loads vertices [window * store.window, +store.window) into `out` (resident or not).
 void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& store, uint64_t window,

@@ -1156,6 +1156,10 @@ class Loader {
       return pair[at];
     };
     uint32_t upper_loaded = UINT32_MAX;  // which chunk sits in the upper half
+    // The frame buffers of the loop's passes (a few frames each), reused across them.
+    // Every pass in the loop takes from it (so a parked pump holds one at most) but
+    // load_vertex_window's: cleared before that one.
+    FramePool buffers;
     bool handed_out = false;  // the lower half may still be read by an I/O task
     auto wait_for_hand_out = [&] {
       if (!handed_out) return;
@@ -1177,15 +1181,17 @@ class Loader {
           std::copy(pair.begin() + int64_t(chunk), pair.end(), pair.begin());
         }
       } else if (floats) {
-        load_float_vertex_window(c, pair_xyz.data());
+        load_float_vertex_window(c, pair_xyz.data(), &buffers);
       } else {
+        buffers.clear();
         load_vertex_window(job_, scratch_, mesh_.vertices, c, pair.data());
       }
       upper_loaded = UINT32_MAX;
       if (has_local && c + 1 < chunks) {
         if (floats) {
-          load_float_vertex_window(c + 1, pair_xyz.data() + 3 * chunk);
+          load_float_vertex_window(c + 1, pair_xyz.data() + 3 * chunk, &buffers);
         } else {
+          buffers.clear();
           load_vertex_window(job_, scratch_, mesh_.vertices, c + 1, pair.data() + chunk);
         }
         upper_loaded = c + 1;
@@ -1263,28 +1269,33 @@ class Loader {
               mesh_.dropped_faces += add_record_runs(blocks, records.data(), cells, header.count);
             },
             cells_in_place ? id_triangle32_record_size + sizeof(uint32_t) : sizeof(BlockFace) + sizeof(uint32_t), false,
-            cells_in_place);
+            cells_in_place, &buffers);
       }
       if (has_corners) {
         for_each_frame(
             job_, scratch_, "resolve", "corner frames", corners.frames(c), sizeof(CornerRef),
             [&](const FrameHeader& header, Bytes& records, Lease&) {
-              const auto* refs = reinterpret_cast<const CornerRef*>(records.data());
-              Bytes out(header.count * sizeof(ResolvedCorner));
-              auto* res = reinterpret_cast<ResolvedCorner*>(out.data());
-              for (uint64_t i = 0; i < header.count; ++i) {
-                res[i] = {refs[i].corner, refs[i].vertex, position(refs[i].vertex - first)};
+              // In place, in the room the frame's read left: backwards, so that each
+              // ref is read before anything is written over it (ref i goes from 16i
+              // to 40i, at or after where it was).
+              static_assert(sizeof(ResolvedCorner) >= sizeof(CornerRef));
+              records.resize(header.count * sizeof(ResolvedCorner));
+              for (uint64_t i = header.count; i-- > 0;) {
+                CornerRef ref;
+                std::memcpy(&ref, records.data() + i * sizeof(CornerRef), sizeof ref);
+                const ResolvedCorner res{ref.corner, ref.vertex, position(ref.vertex - first)};
+                std::memcpy(records.data() + i * sizeof(ResolvedCorner), &res, sizeof res);
               }
-              records.swap(out);
             },
             [&](const FrameHeader& header, Bytes& records, Lease&) {
               const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
               for (uint64_t i = 0; i < header.count; ++i) resolved->add(uint32_t(res[i].corner / 3 / range), &res[i]);
             },
-            sizeof(ResolvedCorner));
+            sizeof(ResolvedCorner), false, true, &buffers);
       }
       job_.progress(0.4 + 0.4 * double(c + 1) / chunks, "resolve");
     }
+    buffers.clear();
     wait_for_hand_out();
     mesh_.vertices_delivered = bool(hooks_.vertices) || floats;
     release_memory(pair);
@@ -1301,15 +1312,21 @@ class Loader {
 
     BucketSpill spanning_blocks(job_, scratch_, "blocks-spanning", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "assemble");
+    // Slots for every face of a range (only spanning faces fill theirs), made once for
+    // the largest range and filled range after range: fresh slots per range were
+    // fresh pages, most of a shuffled input's page faults. So are the frame buffers
+    // (kept across the ranges' passes; nothing else waits for memory in this loop).
+    const uint64_t slots = std::min<uint64_t>(range, face_count);
+    Lease range_lease = take("face range", slots * 3 * 32 + slots);
+    UninitializedVector<uint64_t> vertex_of(3 * slots);
+    UninitializedVector<Point> position_of(3 * slots);
+    std::vector<uint8_t> filled(slots);
+    FramePool frame_buffers;
     for (uint32_t r = 0; r < range_count && r < resolved_corners.bucket_count(); ++r) {
       if (resolved_corners.records(r) == 0) continue;
       uint64_t first_face = uint64_t(r) * range;
       uint64_t n = std::min<uint64_t>(range, face_count - first_face);
-      // Slots for every face of the range; only spanning faces fill theirs.
-      Lease range_lease = take("face range", n * 3 * 32 + n);
-      UninitializedVector<uint64_t> vertex_of(3 * n);
-      UninitializedVector<Point> position_of(3 * n);
-      std::vector<uint8_t> filled(n, 0);
+      std::fill_n(filled.begin(), n, uint8_t{0});
       for_each_frame(job_, scratch_, "assemble", "resolved frames", resolved_corners.frames(r), sizeof(ResolvedCorner),
                      [&](const FrameHeader& header, Bytes& records, Lease&) {
                        const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
@@ -1323,7 +1340,7 @@ class Loader {
                        const auto* res = reinterpret_cast<const ResolvedCorner*>(records.data());
                        for (uint64_t i = 0; i < header.count; ++i) ++filled[res[i].corner / 3 - first_face];
                      },
-                     0);
+                     0, false, false, &frame_buffers);
       Span span(&job_.trace(), &job_.activity(), "assemble faces");
       BlockFace face;
       for (uint64_t i = 0; i < n; ++i) {
@@ -1337,19 +1354,20 @@ class Loader {
         }
         add_face(spanning_blocks, face);
       }
-      release_memory(vertex_of);
-      release_memory(position_of);
-      release_memory(filled);
-      give_back(std::move(range_lease));
       job_.check();
       job_.progress(0.8 + 0.1 * double(r + 1) / range_count, "assemble");
     }
+    frame_buffers.clear();
+    release_memory(vertex_of);
+    release_memory(position_of);
+    release_memory(filled);
+    give_back(std::move(range_lease));
     collect_blocks(spanning_blocks);
     remove_files(resolved_corners);
   }
 
   // Window w of a float-exact mesh's vertices (every frame of floats) as xyz floats.
-  void load_float_vertex_window(uint64_t w, float* out) {
+  void load_float_vertex_window(uint64_t w, float* out, FramePool* buffers = nullptr) {
     const VertexStore& store = mesh_.vertices;
     const uint64_t first = w * store.window;
     for (const FrameRef& ref : store.windows.at(w)) {
@@ -1362,7 +1380,7 @@ class Loader {
                      }
                      std::memcpy(out + 3 * (header.tag - first), records.data(), records.size());
                    },
-                   {}, 0);
+                   {}, 0, false, false, buffers);
   }
 
   void remove_files(const BucketSpill& spill) {
@@ -1452,7 +1470,8 @@ BlockGrid BlockGrid::around(const Point& min, const Point& max, uint32_t blocks)
 
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size, const FrameUse& transform,
-                    const FrameUse& sink, uint32_t out_record_size, bool ordered, bool in_place) {
+                    const FrameUse& sink, uint32_t out_record_size, bool ordered, bool in_place,
+                    FramePool* pool) {
   // The header and the payload are read apart, so that a raw payload is the records
   // themselves: no copy between the disk's bytes and the transform.
   struct FrameItem {
@@ -1462,6 +1481,14 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
     FrameHeader header;
   };
   size_t next = 0;
+  FramePool own_pool;
+  FramePool& kept = pool ? *pool : own_pool;
+  using Kept = FramePool::Kept;
+  std::optional<Kept> taken;  // the pump's (I/O thread): for frames[next]
+  auto room_for = [&](const FrameRef& ref) {
+    return in_place ? std::max(ref.bytes - frame_header_bytes, ref.count * out_record_size) : ref.bytes - frame_header_bytes;
+  };
+  auto item_bytes = [&](const FrameRef& ref) { return ref.bytes + ref.count * (record_size + out_record_size); };
   StreamPass<FrameItem> pass;
   pass.stage = stage;
   pass.read_name = "read scratch";
@@ -1471,17 +1498,41 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
   pass.next_item_bytes = [&] {
     if (next == frames.size()) return uint64_t(1);
     const FrameRef& ref = frames[next];
-    return ref.bytes + ref.count * (record_size + out_record_size);
+    const uint64_t need = item_bytes(ref);
+    std::vector<Kept> freed = kept.take_all();  // all but the one taken go back
+    // A buffer that holds the records and is no larger than the item's lease.
+    auto fits = [&](const Kept& kept) {
+      return kept.buffer.capacity() >= room_for(ref) && kept.lease.bytes() <= need;
+    };
+    if (taken && !fits(*taken)) taken.reset();
+    for (Kept& one : freed) {
+      if (!taken && fits(one)) {
+        taken = std::move(one);
+      } else if (one.lease && !kept.keep(one.buffer, one.lease)) {
+        break;  // the pool filled meanwhile: the rest are freed
+      }
+    }
+    freed.clear();  // buffers freed, then their leases (releases wake waiters)
+    return taken ? std::max<uint64_t>(need - taken->lease.bytes(), 1) : need;
   };
-  pass.read = [&](FrameItem& item, Lease&) {
+  pass.read = [&](FrameItem& item, Lease& lease) {
     if (next == frames.size()) return false;
     item.ref = frames[next++];
     const std::string where = "frame " + std::to_string(item.ref.file) + "@" + std::to_string(item.ref.offset);
     if (item.ref.bytes < frame_header_bytes) throw Error(ErrorKind::internal, where + ": shorter than its header");
+    if (taken) {
+      item.records = std::move(taken->buffer);
+      lease.merge(std::move(taken->lease));
+      taken.reset();
+    }
     scratch.read(item.ref.file, item.ref.offset, item.header_bytes.data(), frame_header_bytes);
     // Room for what transform makes of the records (the lease covers it), so that it
     // can write them in place rather than into a new buffer.
-    if (in_place) item.records.reserve(std::max(item.ref.bytes - frame_header_bytes, item.ref.count * out_record_size));
+    // A fresh buffer gets some slack within its lease, so that the next frames (of
+    // about the same count) fit it too.
+    if (item.records.capacity() < room_for(item.ref)) {
+      item.records.reserve(std::min(lease.bytes(), room_for(item.ref) + room_for(item.ref) / 4));
+    }
     item.records.resize(item.ref.bytes - frame_header_bytes);
     scratch.read(item.ref.file, item.ref.offset + frame_header_bytes, item.records.data(), item.records.size());
     job.stage(stage).bytes_read += item.ref.bytes;
@@ -1492,10 +1543,30 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
                                        "frame " + std::to_string(item.ref.file) + "@" + std::to_string(item.ref.offset));
     if (transform) transform(item.header, item.records, lease);
   };
-  if (sink) {
-    pass.sink = [&](FrameItem& item, Lease& lease) { sink(item.header, item.records, lease); };
-  }
+  pass.sink = [&](FrameItem& item, Lease& lease) {
+    if (sink) sink(item.header, item.records, lease);
+    if (kept.keep(item.records, lease)) job.governor().wake_all();
+  };
+  // Parked: nothing kept but the buffer taken for this read (counted in what it waits
+  // for), so that the pool never holds bytes the governor is waiting for.
+  pass.parked_for_memory = [&kept] { kept.clear(); };
+  struct GiveBackTaken {  // a buffer taken for a frame never read stays kept
+    FramePool& pool;
+    std::optional<Kept>& taken;
+    ~GiveBackTaken() {
+      if (taken && !pool.keep(taken->buffer, taken->lease)) taken.reset();
+    }
+  } give_back_taken{kept, taken};
   run_stream_pass(job, pass);
+}
+
+bool FramePool::keep(Bytes& buffer, Lease& lease, size_t max_kept) {
+  const uint64_t capacity = buffer.capacity();
+  if (capacity == 0 || capacity > lease.bytes()) return false;  // moved away, or not covered
+  std::lock_guard lock(mutex_);
+  if (kept_.size() >= max_kept) return false;
+  kept_.push_back({lease.split(capacity), std::move(buffer)});
+  return true;
 }
 
 void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& store, uint64_t window,

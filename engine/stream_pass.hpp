@@ -68,6 +68,9 @@ struct StreamPass {
   // Optional: the exact lease the next item needs (e.g. a frame's size); replaces
   // min/max_item_bytes. Called on the I/O thread just before read.
   std::function<uint64_t()> next_item_bytes;
+  // Optional: called on the I/O thread when a read is parked for memory (after the
+  // governor took the wake-up request), e.g. to free buffers kept for later items.
+  std::function<void()> parked_for_memory;
 };
 
 namespace detail {
@@ -126,7 +129,10 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
             owner, min_bytes, max_bytes, [&job, weak, &pass] {
               if (auto s = weak.lock()) job.io().submit(pass.read_name, s->step, {});
             });
-        if (!lease) return;  // parked until memory is released
+        if (!lease) {  // parked until memory is released
+          if (pass.parked_for_memory) pass.parked_for_memory();
+          return;
+        }
         auto env = std::make_shared<Env>();
         env->seq = self->seq++;
         bool more = pass.read(env->item, lease);
