@@ -732,10 +732,8 @@ class Loader {
     }
     weld_in_memory(positions, std::move(weld_order_lease));
     // The re-encode's vertices are its output's as they are: handed to the I/O thread
-    // a slice per face batch, they are written between the face pass's reads while
-    // compute threads resolve faces, not after the pass (all at once here, they would
-    // hold the first read back until written). They stay untouched until the drain
-    // after that pass.
+    // now, they are written while the face pass resolves faces, not after it. They
+    // stay untouched until the drain after that pass.
     const bool early_vertices = floats && hooks_.counted && hooks_.float_vertices && input_.info().polygon_count;
     // Whatever throws from here, no queued write may outlive the positions it reads.
     struct DrainIo {
@@ -746,14 +744,8 @@ class Loader {
       mesh_.face_count = polygon_count;
       mesh_.float_exact = box_.float_exact;
       hooks_.counted(mesh_);
+      hooks_.float_vertices(0, xyz.data(), vertex_count);
     }
-    uint64_t vertices_handed = 0;
-    // Vertices [vertices_handed, up_to) to the output.
-    auto hand_vertices = [&](uint64_t up_to) {
-      if (up_to <= vertices_handed) return;
-      hooks_.float_vertices(vertices_handed, xyz.data() + 3 * vertices_handed, up_to - vertices_handed);
-      vertices_handed = up_to;
-    };
     if (options_.degrees) {
       count_degrees_from_input(vertex_count);
       reopen_input_past_vertices();
@@ -845,17 +837,10 @@ class Loader {
       if (!item.batch.triangles.empty()) {
         mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
       }
-      // As many vertices as the faces read so far are of all faces (only the slices'
-      // sizes depend on it, never what is written; the rest goes after the pass).
-      if (early_vertices) {
-        const double share = double(std::min(mesh_.face_count, polygon_count)) / double(polygon_count);
-        hand_vertices(std::min(vertex_count, uint64_t(double(vertex_count) * share)));
-      }
     };
     if (early_vertices) mesh_.face_count = 0;  // counted again by the sink
     run_stream_pass(job_, face_pass);
     if (early_vertices) {
-      hand_vertices(vertex_count);
       job_.io().drain();
       job_.check();
       mesh_.vertices_delivered = true;
