@@ -177,10 +177,8 @@ struct LoadedMesh {
   bool vertices_delivered = false;
 };
 
-// Optional calls from an out-of-core load, on the calling thread (the resident one
-// makes only the float-exact triangle-only pair below: counted, then float_vertices
-// once with every vertex, after its vertex pass, so that they are written while the
-// faces are resolved; the grid is not built yet then):
+// Optional calls from an out-of-core load (the resident one makes none), on the
+// calling thread:
 // - counted(mesh): after the first pass, when the counts, float_exact and the grid are
 //   known, before the dereference (the re-encode opens its output here);
 // - vertices(first, points, count): every vertex chunk, in index order, as the

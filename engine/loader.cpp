@@ -731,21 +731,6 @@ class Loader {
                       "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");
     }
     weld_in_memory(positions, std::move(weld_order_lease));
-    // The re-encode's vertices are its output's as they are: handed to the I/O thread
-    // now, they are written while the face pass resolves faces, not after it. They
-    // stay untouched until the drain after that pass.
-    const bool early_vertices = floats && hooks_.counted && hooks_.float_vertices && input_.info().polygon_count;
-    // Whatever throws from here, no queued write may outlive the positions it reads.
-    struct DrainIo {
-      Job& job;
-      ~DrainIo() { job.io().drain(); }
-    } drain_before_positions_go{job_};
-    if (early_vertices) {
-      mesh_.face_count = polygon_count;
-      mesh_.float_exact = box_.float_exact;
-      hooks_.counted(mesh_);
-      hooks_.float_vertices(0, xyz.data(), vertex_count);
-    }
     if (options_.degrees) {
       count_degrees_from_input(vertex_count);
       reopen_input_past_vertices();
@@ -838,18 +823,7 @@ class Loader {
         mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
       }
     };
-    if (early_vertices) mesh_.face_count = 0;  // counted again by the sink
     run_stream_pass(job_, face_pass);
-    if (early_vertices) {
-      job_.io().drain();
-      job_.check();
-      mesh_.vertices_delivered = true;
-      if (mesh_.face_count != polygon_count) {
-        throw_bad_input(input_.path.string(), "end of faces",
-                        "truncated: " + std::to_string(mesh_.face_count) + " of " + std::to_string(polygon_count) +
-                            " faces");
-      }
-    }
     if (in_memory) {
       mesh_.resident_blocks = in_memory->finish(mesh_.resident_blocks_lease);
       mesh_.float_exact = box_.float_exact;
