@@ -72,8 +72,12 @@ bool PlyBulkReader::read(RawChunk& chunk, size_t max_bytes) {
     if (!header_.face_element) {  // no faces: only whitespace may follow the vertices
       ended_ = true;
       char tail[4096];
-      const size_t n = read_at(fd_, name_, position_, tail, size_t(std::min<uint64_t>(sizeof tail, file_size_ - position_)));
-      check_trailing_bytes(name_, tail, n, position_, header_.elements[header_.vertex_element]);
+      for (uint64_t at = position_; at < file_size_;) {
+        const size_t n = read_at(fd_, name_, at, tail, size_t(std::min<uint64_t>(sizeof tail, file_size_ - at)));
+        if (n == 0) break;
+        check_trailing_bytes(name_, tail, n, at, header_.elements[header_.vertex_element]);
+        at += n;
+      }
       return false;
     }
     want = std::max<size_t>(max_bytes, 1);

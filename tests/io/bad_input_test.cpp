@@ -156,6 +156,14 @@ TEST(BadInput, DataAfterTheLastElementNamesItsOffset) {
              "byte " + std::to_string(ply.face_offset(4) + 1) + ": data after the last element");
   expect_bad(ascii_ply("0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 2 1\n"), "a.ply",
              "line 15: data after the last element (the header declares 1 face");
+  // A file without faces: every trailing byte is looked at, not just the first few KiB.
+  PlyBuilder vertices_only("binary_little_endian");
+  vertices_only.header_line("element vertex 1");
+  for (const char* axis : {"x", "y", "z"}) vertices_only.header_line(std::string("property float ") + axis);
+  const std::string point = vertices_only.header() + std::string(12, '\0') + std::string(5000, ' ') + "garbage";
+  const size_t garbage_at = point.size() - 7;
+  expect_bad(point, "p.ply", "byte " + std::to_string(garbage_at) + ": data after the last element");
+  expect_bad(testing::zstd_compress(point), "p.ply.zst", "byte " + std::to_string(garbage_at) + ": data after");
   TempDir dir;
   for (const auto& [name, bytes] : std::vector<std::pair<std::string, std::string>>{
            {"m.ply", ply.bytes() + "\n"}, {"a.ply", ascii_ply("0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n\n  \n")}}) {

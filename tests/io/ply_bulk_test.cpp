@@ -261,6 +261,15 @@ TEST(PlyBulk, DataAfterTheLastFaceFailsExactlyLikeTheStreamingReader) {
     testing::write_bytes(path, bytes + "\n");
     for (size_t max_bytes : {3, 13, 1 << 20}) EXPECT_EQ(bulk_bad_input_message(path, max_bytes), "");
   }
+  // Without a face element, past the first 4 KiB of trailing spaces too.
+  PlyBuilder points("binary_little_endian");
+  points.header_line("element vertex 1");
+  for (const char* axis : {"x", "y", "z"}) points.header_line(std::string("property float ") + axis);
+  auto path = dir / "p.ply";
+  testing::write_bytes(path, points.header() + std::string(12, '\0') + std::string(5000, ' ') + "garbage");
+  const std::string expected = testing::bad_input_message(path);
+  ASSERT_NE(expected.find("data after the last element"), std::string::npos) << expected;
+  EXPECT_EQ(bulk_bad_input_message(path, 1 << 20), expected);
 }
 
 TEST(PlyBulk, EncodersMakeTheWritersBytes) {
