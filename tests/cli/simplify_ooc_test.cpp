@@ -381,6 +381,21 @@ TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), budget);
 }
 
+// A run that fits in core after the conversion goes straight to the finish, with no
+// epoch (and so no trim) between: what load, partition and convert freed but the
+// allocator kept was covered by no lease, and the finish's lease came on top of it (a
+// shuffled 300k at 84M peaked at 92 MiB, 39-65 MiB resident at the finish's start,
+// review9).
+TEST(SimplifyOoc, AFinishWithoutEpochsStartsFromTheBaseline) {
+  TempDir dir;
+  const auto r = simplify_with_report(dir, generate(dir, "--faces 300000 --shuffle 1"),
+                                      "--ratio 0.01 --clusters 2 --mem-budget 84M");
+  ASSERT_EQ(r["out_of_core_epochs"].get<int>(), 0);
+  EXPECT_LE(r["in_core_start_rss_bytes"].get<uint64_t>(), r["baseline_bytes"].get<uint64_t>())
+      << "resident beyond the baseline with no lease held";
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 84ull << 20);
+}
+
 // With --trace the job holds the trace buffer (2^18 events, 12 MiB) for the whole run;
 // patches sized from the governor's bare capacity asked for more than could ever be
 // free and waited forever (review7). Stages now size from Job::capacity(), which leaves
