@@ -539,8 +539,8 @@ class Loader {
   uint32_t triangle_record(const Triangle& t, const Point& a, const Point& b, const Point& c, std::byte* out) const {
     if (mesh_.block_record_size == triangle32_record_size) {
       put_u32_pair(out, t[0], t[1]);
-      const uint32_t c = uint32_t(t[2]);
-      std::memcpy(out + 8, &c, sizeof c);
+      const uint32_t third = uint32_t(t[2]);
+      std::memcpy(out + 8, &third, sizeof third);
     } else {
       std::memcpy(out, t.data(), sizeof(Triangle));
     }

@@ -3,7 +3,9 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <charconv>
 #include <cstdlib>
+#include <cstring>
 
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
@@ -24,7 +26,14 @@ namespace {
 // command make the same decisions and the same report counts (epochs.hpp).
 uint64_t baseline_bytes() {
   static const char* fixed = std::getenv("QEMFLOW_BASELINE");
-  return fixed ? std::strtoull(fixed, nullptr, 10) : engine::measure_baseline();
+  if (!fixed) return engine::measure_baseline();
+  uint64_t bytes = 0;
+  const char* end = fixed + std::strlen(fixed);
+  const auto [at, error] = std::from_chars(fixed, end, bytes);
+  if (error != std::errc() || at != end || bytes == 0) {
+    throw Error(ErrorKind::usage, std::string("QEMFLOW_BASELINE=") + fixed + ": not a byte count");
+  }
+  return bytes;
 }
 
 }  // namespace

@@ -381,6 +381,21 @@ TEST(SimplifyOoc, InCoreFinishStaysWithinItsLease) {
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), budget);
 }
 
+// QEMFLOW_BASELINE must be a byte count: anything else is a usage error (exit 2), not a
+// baseline of 0 that would let leases take the process's own memory too.
+TEST(SimplifyOoc, ABaselineThatIsNotAByteCountIsAUsageError) {
+  TempDir dir;
+  const auto mesh = generate(dir, "--faces 2000");
+  std::string out;
+  EXPECT_EQ(run_command("QEMFLOW_BASELINE=32M " + q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+                            " --ratio 0.5 --quiet",
+                        &out),
+            2)
+      << out;
+  EXPECT_NE(out.find("QEMFLOW_BASELINE=32M: not a byte count"), std::string::npos) << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
+}
+
 // A run that fits in core after the conversion goes straight to the finish, with no
 // epoch (and so no trim) between: what load, partition and convert freed but the
 // allocator kept was covered by no lease, and the finish's lease came on top of it (a
