@@ -16,18 +16,23 @@ namespace qemflow::io::ply_binary {
 // rather than a polygon anyone meant to write.
 constexpr size_t max_record_bytes = size_t{1} << 26;
 
+// The whitespace of an ASCII PLY's body, and all that may follow a PLY's last element.
+inline bool is_space(char c) { return c == ' ' || c == '\n' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
+
+// The problem named when a PLY goes on after its last element: the header's counts do
+// not match the body, and reading on as if they did would drop faces without a word.
+inline std::string data_after_last_element(const PlyElement& last) {
+  return "data after the last element (the header declares " + std::to_string(last.count) + " " + last.name +
+         "; are its counts wrong?)";
+}
+
 // Bytes after a PLY's last element may only be whitespace (some writers end with a
-// newline). Anything else means the header's counts do not match the body, and
-// reading on as if they did would drop faces without a word. Throws bad input at
-// the first such byte; `offset` is the offset of p[0] in the file.
+// newline). Throws bad input at the first other byte; `offset` is the offset of p[0]
+// in the file.
 inline void check_trailing_bytes(const std::string& file, const char* p, size_t n, uint64_t offset,
                                  const PlyElement& last) {
   for (size_t i = 0; i < n; ++i) {
-    const char c = p[i];
-    if (c == ' ' || c == '\n' || c == '\t' || c == '\r' || c == '\f' || c == '\v') continue;
-    throw_bad_input(file, "byte " + std::to_string(offset + i),
-                    "data after the last element (the header declares " + std::to_string(last.count) + " " +
-                        last.name + "; are its counts wrong?)");
+    if (!is_space(p[i])) throw_bad_input(file, "byte " + std::to_string(offset + i), data_after_last_element(last));
   }
 }
 

@@ -19,8 +19,6 @@ namespace {
 
 using namespace ply_binary;
 
-inline bool is_space(char c) { return c == ' ' || c == '\n' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
-
 class PlyReader final : public MeshReader {
  public:
   PlyReader(const std::filesystem::path& path, bool zstd) : source_(path, zstd) {
@@ -83,9 +81,7 @@ class PlyReader final : public MeshReader {
     if (header_.format == MeshFormat::ply_ascii) {
       std::string_view token;
       if (next_token(token)) {
-        throw_bad_input(name(), line_place(),
-                        "data after the last element (the header declares " + std::to_string(last.count) + " " +
-                            last.name + "; are its counts wrong?)");
+        throw_bad_input(name(), line_place(), data_after_last_element(last));
       }
       return;
     }
