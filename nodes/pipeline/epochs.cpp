@@ -7,7 +7,6 @@
 #include <cmath>
 #include <ctime>
 #include <cstddef>
-#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <deque>
@@ -1568,7 +1567,11 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // The finish holds its lease while it gathers the state, whose frames need memory of
   // their own: a lease of the whole capacity would wait for them forever. So a forced
   // threshold (tests) is capped at what the budget allows.
-  const uint64_t in_core_bytes = uint64_t(0.9 * double(capacity));
+  // The share of the capacity the finish's lease may take, and the capacity that gives
+  // a lease of `bytes` its share.
+  constexpr double kFinishShare = 0.9;
+  auto capacity_for_finish = [&](uint64_t bytes) { return uint64_t(double(bytes) / kFinishShare); };
+  const uint64_t in_core_bytes = uint64_t(kFinishShare * double(capacity));
   const uint64_t most_in_core_faces = in_core_bytes / kInCoreBytesPerFace;
   const uint64_t in_core_faces =
       options.in_core_faces ? std::min(options.in_core_faces, most_in_core_faces) : most_in_core_faces;
@@ -1580,7 +1583,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // a target too large for the budget is refused now (DESIGN §3 'Bounded'), not run over
   // it. (Streaming a large output out of core is not implemented.)
   job.require_fits("the in-core finish of " + std::to_string(st.target_faces) + " output faces",
-                              uint64_t(double(st.target_faces) * double(kInCoreBytesPerFace) / 0.9));
+                   capacity_for_finish(st.target_faces * kInCoreBytesPerFace));
 
   // A mesh that fits the finish needs no partition (no sampling, clusters or planes):
   // it goes in core at once. An explicit --clusters is kept (tests force epochs so).
@@ -1616,7 +1619,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   if (state->isolated_faces && !fits_in_core(state->faces, state->vertices())) {
     const uint64_t isolated = state->isolated_faces;
     const uint64_t faces = std::min(state->faces, isolated + st.target_faces);
-    const uint64_t bytes = uint64_t(double(in_core_finish_bytes(faces, 3 * isolated + (faces - isolated) / 2)) / 0.9);
+    const uint64_t bytes = capacity_for_finish(in_core_finish_bytes(faces, 3 * isolated + (faces - isolated) / 2));
     runner.finish_minimum = bytes + job.held_for_run() + job.governor().baseline();
     job.require_fits("the in-core finish of " + std::to_string(isolated) +
                          " isolated faces (nothing collapses them) and up to " + std::to_string(faces - isolated) +
@@ -1708,7 +1711,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   const uint64_t finish_bytes = std::max<uint64_t>(1, in_core_finish_bytes(state->faces, state->vertices()));
   job.require_fits("the in-core finish of " + std::to_string(state->faces) + " faces and " +
                        std::to_string(state->vertices()) + " vertices",
-                   uint64_t(double(finish_bytes) / 0.9));
+                   capacity_for_finish(finish_bytes));
   Lease lease = job.governor().acquire(job.owner("in core"), std::min(capacity, finish_bytes),
                                        std::min(capacity, finish_bytes), [&] { return job.stopped(); });
   PatchInput whole;
