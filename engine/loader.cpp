@@ -116,6 +116,15 @@ constexpr uint64_t max_input_lease = 4ull << 20;
 // How many faces ahead the face loops prefetch their vertex positions: enough to
 // cover a miss to memory at a few ns a face.
 constexpr size_t prefetch_faces_ahead = 16;
+// Asks for vertex `at`'s position: in `xyz` (3 floats a vertex) when `floats`, else in
+// `points`.
+inline void prefetch_position(bool floats, const float* xyz, const Point* points, uint64_t at) {
+  if (floats) {
+    __builtin_prefetch(xyz + 3 * at);
+  } else {
+    __builtin_prefetch(points + at);
+  }
+}
 
 // u32(a) then u32(b) at `out`, as one 8-byte store. Built in an array instead, the
 // record went through the stack as 4-byte stores read back as 8 bytes, a failed store
@@ -766,13 +775,7 @@ class Loader {
           // misses overlap instead of stalling one after another.
           if (i + prefetch_faces_ahead < faces) {
             for (uint64_t v : batch.triangles[i + prefetch_faces_ahead]) {
-              if (v < vertex_count) {
-                if (floats) {
-                  __builtin_prefetch(xyz.data() + 3 * v);
-                } else {
-                  __builtin_prefetch(positions.data() + v);
-                }
-              }
+              if (v < vertex_count) prefetch_position(floats, xyz.data(), positions.data(), v);
             }
           }
           const Triangle& t = batch.triangles[i];
@@ -1189,13 +1192,7 @@ class Loader {
                     std::memcpy(ahead, ids_at + prefetch_faces_ahead * size, sizeof ahead);
                     for (uint32_t v : ahead) {
                       const uint64_t at = uint64_t(v) - first;  // wraps past the end when below
-                      if (at < pair_vertices) {
-                        if (floats) {
-                          __builtin_prefetch(pair_xyz.data() + 3 * at);
-                        } else {
-                          __builtin_prefetch(pair.data() + at);
-                        }
-                      }
+                      if (at < pair_vertices) prefetch_position(floats, pair_xyz.data(), pair.data(), at);
                     }
                   }
                   uint32_t ids[3];
