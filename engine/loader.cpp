@@ -744,89 +744,115 @@ class Loader {
       count_degrees_from_input(vertex_count);
       reopen_input_past_vertices();
     }
-    build_grid(polygon_count);
     const uint32_t record_size = choose_block_layout();
-    // Triangle-only records that fit what the loader holds stay in memory: no scratch.
+    // A PLY's face count counts polygons: an input with quads or larger polygons has
+    // more triangles than that, and resident blocks sized by it overflow. Its faces are
+    // then read once more, into blocks sized by the triangles the first read counted.
+    uint64_t expected_triangles = polygon_count;
     std::optional<ResidentBlocks> in_memory;
-    if (options_.triangles_only && polygon_count > 0) {
-      uint64_t need = ResidentBlocks::bytes_for(polygon_count, record_size, mesh_.grid.count());
-      if (need <= reserve_.bytes() + block_lease.bytes()) {
-        give_back(std::move(block_lease));
-        in_memory.emplace(polygon_count, record_size, mesh_.grid.count(), take("resident blocks", need));
+    for (int attempt = 0;; ++attempt) {
+      build_grid(polygon_count);  // the same grid on both reads and out of core
+      // Triangle-only records that fit what the loader holds stay in memory: no scratch.
+      if (options_.triangles_only && expected_triangles > 0) {
+        uint64_t need = ResidentBlocks::bytes_for(expected_triangles, record_size, mesh_.grid.count());
+        if (need <= reserve_.bytes() + block_lease.bytes()) {
+          give_back(std::move(block_lease));
+          in_memory.emplace(expected_triangles, record_size, mesh_.grid.count(), take("resident blocks", need));
+        }
       }
-    }
-    if (!in_memory) {
-      blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", record_size, std::move(block_lease),
-                                             mesh_.grid.count(), "load");
-    }
+      if (!in_memory) {
+        if (block_lease.bytes() == 0) block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
+        blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", record_size, std::move(block_lease),
+                                               mesh_.grid.count(), "load");
+      }
 
-    // Pass B: faces resolved and made into block records on every compute thread;
-    // the sink only files them.
-    auto face_pass = input_pass(&InputStream::read_faces);
-        face_pass.transform = [&](InputItem& item, Lease&) {
-      const auto& batch = item.batch;
-      item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
-      item.cells.resize(batch.triangles.size());
-      if (verbatim_triangles()) {
-        const size_t faces = batch.triangles.size();
-        for (size_t i = 0; i < faces; ++i) {
-          // The positions a face reads are scattered over the whole vertex array:
-          // ask for a later face's while this one's are resolved, so the cache
-          // misses overlap instead of stalling one after another.
-          if (i + prefetch_faces_ahead < faces) {
-            for (uint64_t v : batch.triangles[i + prefetch_faces_ahead]) {
-              if (v < vertex_count) prefetch_position(floats, xyz.data(), positions.data(), v);
+      // Pass B: faces resolved and made into block records on every compute thread;
+      // the sink only files them.
+      auto face_pass = input_pass(&InputStream::read_faces);
+      face_pass.transform = [&](InputItem& item, Lease&) {
+        const auto& batch = item.batch;
+        item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
+        item.cells.resize(batch.triangles.size());
+        if (verbatim_triangles()) {
+          const size_t faces = batch.triangles.size();
+          for (size_t i = 0; i < faces; ++i) {
+            // The positions a face reads are scattered over the whole vertex array:
+            // ask for a later face's while this one's are resolved, so the cache
+            // misses overlap instead of stalling one after another.
+            if (i + prefetch_faces_ahead < faces) {
+              for (uint64_t v : batch.triangles[i + prefetch_faces_ahead]) {
+                if (v < vertex_count) prefetch_position(floats, xyz.data(), positions.data(), v);
+              }
+            }
+            const Triangle& t = batch.triangles[i];
+            for (uint64_t v : t) {
+              if (v >= vertex_count) index_out_of_range(input_.path, batch.first_triangle + i, v, vertex_count);
+            }
+            if (floats) {
+              auto at = [&](uint64_t v) { return Point{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
+              item.cells[i] = triangle_record(t, at(t[0]), at(t[1]), at(t[2]),
+                                              item.block_records.data() + i * mesh_.block_record_size);
+            } else {
+              item.cells[i] = triangle_record(t, positions[t[0]], positions[t[1]], positions[t[2]],
+                                              item.block_records.data() + i * mesh_.block_record_size);
             }
           }
-          const Triangle& t = batch.triangles[i];
-          for (uint64_t v : t) {
-            if (v >= vertex_count) index_out_of_range(input_.path, batch.first_triangle + i, v, vertex_count);
+          return;
+        }
+        BlockFace face;
+        size_t kept = 0;
+        for (size_t i = 0; i < batch.triangles.size(); ++i) {
+          face.id = batch.first_triangle + i;
+          for (int k = 0; k < 3; ++k) {
+            uint64_t v = batch.triangles[i][k];
+            if (v >= vertex_count) index_out_of_range(input_.path, face.id, v, vertex_count);
+            face.positions[k] = positions[v];
           }
-          if (floats) {
-            auto at = [&](uint64_t v) { return Point{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
-            item.cells[i] = triangle_record(t, at(t[0]), at(t[1]), at(t[2]),
-                                            item.block_records.data() + i * mesh_.block_record_size);
+          if (!prepare(face, batch.triangles[i])) {
+            ++item.dropped;
+            continue;
+          }
+          item.cells[kept] = make_record(face, item.block_records.data() + kept * mesh_.block_record_size);
+          ++kept;
+        }
+        item.cells.resize(kept);
+      };
+      bool overflowed = false;
+      face_pass.sink = [&](InputItem& item, Lease&) {
+        if (in_memory) {
+          if (overflowed || !in_memory->fits(item.cells.size())) {
+            // The reader holds the file to its header's polygon count; past the first
+            // read, the count is the triangles' own.
+            if (attempt > 0) {
+              throw_bad_input(input_.path.string(), "triangle " + std::to_string(item.batch.first_triangle),
+                              "more faces than the first read of the file found (did it change?)");
+            }
+            overflowed = true;  // counted on, not stored
           } else {
-            item.cells[i] = triangle_record(t, positions[t[0]], positions[t[1]], positions[t[2]],
-                                            item.block_records.data() + i * mesh_.block_record_size);
+            add_records(*in_memory, item.block_records, item.cells);
           }
+        } else {
+          add_records(*blocks, item.block_records, item.cells);
         }
-        return;
-      }
-      BlockFace face;
-      size_t kept = 0;
-      for (size_t i = 0; i < batch.triangles.size(); ++i) {
-        face.id = batch.first_triangle + i;
-        for (int k = 0; k < 3; ++k) {
-          uint64_t v = batch.triangles[i][k];
-          if (v >= vertex_count) index_out_of_range(input_.path, face.id, v, vertex_count);
-          face.positions[k] = positions[v];
+        mesh_.dropped_faces += item.dropped;
+        if (!item.batch.triangles.empty()) {
+          mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
         }
-        if (!prepare(face, batch.triangles[i])) {
-          ++item.dropped;
-          continue;
-        }
-        item.cells[kept] = make_record(face, item.block_records.data() + kept * mesh_.block_record_size);
-        ++kept;
-      }
-      item.cells.resize(kept);
-    };
-    face_pass.sink = [&](InputItem& item, Lease&) {
-      if (in_memory) {
-        if (!in_memory->fits(item.cells.size())) {
-          throw_bad_input(input_.path.string(), "triangle " + std::to_string(item.batch.first_triangle),
-                          "more faces than the header declares");
-        }
-        add_records(*in_memory, item.block_records, item.cells);
-      } else {
-        add_records(*blocks, item.block_records, item.cells);
-      }
-      mesh_.dropped_faces += item.dropped;
-      if (!item.batch.triangles.empty()) {
-        mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
-      }
-    };
-    run_stream_pass(job_, face_pass);
+      };
+      run_stream_pass(job_, face_pass);
+      if (!overflowed) break;
+      expected_triangles = mesh_.face_count;
+      Lease resident_lease;
+      in_memory->finish(resident_lease);
+      in_memory.reset();
+      give_back(std::move(resident_lease));
+      mesh_.face_count = 0;
+      mesh_.dropped_faces = 0;
+      // The bar goes back to the middle of the load for the second read.
+      progress_base_ = 0;
+      progress_span_ = 0.4;
+      reopen_input_past_vertices();
+    }
     if (in_memory) {
       mesh_.resident_blocks = in_memory->finish(mesh_.resident_blocks_lease);
       mesh_.float_exact = box_.float_exact;
@@ -910,9 +936,11 @@ class Loader {
       // records are u32 id and ids (the sink then files them a run at a time).
       if (local_size != id_triangle32_record_size || batch.triangles.empty()) return;
       const size_t faces = batch.triangles.size();
-      if (batch.first_triangle + faces > *info.polygon_count) {
+      // The header counts polygons, not the triangles fan-triangulated from them: the
+      // bound that matters is the records' u32 face ids.
+      if (batch.first_triangle + faces > (uint64_t(1) << 32)) {
         throw_bad_input(input_.path.string(), "triangle " + std::to_string(batch.first_triangle),
-                        "more faces than the header declares");
+                        "its polygons make more than 2^32 triangles, more than the re-encode can number");
       }
       item.block_records.resize(faces * id_triangle32_record_size);
       item.cells.resize(faces);
@@ -1007,9 +1035,13 @@ class Loader {
     mesh_.float_exact = box_.float_exact;
     const uint32_t chunks = uint32_t(std::max<uint64_t>((vertex_count + chunk - 1) / chunk, 1));
     mesh_.vertices.windows.resize(chunks);
+    // Sized by the header's face count where it has one, as the resident load is: a
+    // PLY with polygon faces has more triangles, and another grid files them in
+    // another order.
+    const uint64_t grid_faces = info.polygon_count.value_or(face_count);
     input_.close();
     if (vertex_count == 0) box_.min = box_.max = Point{0, 0, 0};
-    build_grid(face_count);
+    build_grid(grid_faces);
     timer.reset();
 
     if (weld_spill) weld_by_buckets(*weld_spill, vertex_count);

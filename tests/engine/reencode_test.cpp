@@ -541,6 +541,74 @@ TEST(Reencode, TinyMeshOutOfCoreGivesTheResidentBytes) {
   }
 }
 
+// A binary PLY whose faces are quads, triangles and hexagons (two cells of a grid
+// joined): fan-triangulated, it has more triangles than its header's face count.
+std::filesystem::path make_polygon_mesh(const TempDir& dir, uint32_t n) {
+  std::vector<float> xyz;
+  for (uint32_t y = 0; y <= n; ++y)
+    for (uint32_t x = 0; x <= n; ++x)
+      for (float c : {float(x), float(y), float((x * 7 + y * 3) % 5) * 0.1f}) xyz.push_back(c);
+  std::vector<std::vector<int32_t>> polygons;
+  for (uint32_t y = 0; y < n; ++y) {
+    for (uint32_t x = 0; x < n; ++x) {
+      const int32_t a = int32_t(y * (n + 1) + x), b = a + 1, c = a + int32_t(n) + 2, d = a + int32_t(n) + 1;
+      if ((x + y) % 5 == 0) {
+        polygons.push_back({a, b, c});
+        polygons.push_back({a, c, d});
+      } else if (x % 7 == 3 && x + 1 < n) {
+        polygons.push_back({a, b, b + 1, c + 1, c, d});
+        ++x;
+      } else {
+        polygons.push_back({a, b, c, d});
+      }
+    }
+  }
+  const auto path = dir / "polygons.ply";
+  std::ofstream out(path, std::ios::binary);
+  out << "ply\nformat binary_little_endian 1.0\nelement vertex " << xyz.size() / 3
+      << "\nproperty float x\nproperty float y\nproperty float z\nelement face " << polygons.size()
+      << "\nproperty list uchar int vertex_indices\nend_header\n";
+  out.write(reinterpret_cast<const char*>(xyz.data()), std::streamsize(xyz.size() * sizeof(float)));
+  for (const auto& polygon : polygons) {
+    const auto corners = uint8_t(polygon.size());
+    out.write(reinterpret_cast<const char*>(&corners), 1);
+    out.write(reinterpret_cast<const char*>(polygon.data()), std::streamsize(polygon.size() * sizeof(int32_t)));
+  }
+  return path;
+}
+
+// Review9 M1: the re-encode refused a valid PLY with polygon faces ("more faces than
+// the header declares", exit 3) in every mode: resident blocks and the out-of-core
+// local records were both bounded by the header's polygon count.
+TEST(Reencode, PolygonFacesAreFanTriangulatedInEveryMode) {
+  TempDir dir;
+  const auto in = make_polygon_mesh(dir, 300);
+  const uint64_t triangles = io::read_mesh(in).triangles.size();
+  std::string reference;
+  struct Run {
+    const char* name;
+    uint64_t budget;
+    bool out_of_core;
+  };
+  for (const Run& run : {Run{"resident, blocks in memory", 256ull << 20, false},
+                         Run{"resident, blocks in scratch", 40ull << 20, false},
+                         Run{"out of core", 64ull << 20, true}}) {
+    SCOPED_TRACE(run.name);
+    Governor governor(run.budget, 0);
+    const auto out = dir / "out.ply";
+    ReencodeOptions options{.input = in, .output = out, .scratch_dir = dir.path()};
+    options.load = {.faces_per_block = 20'000, .window_vertices = run.out_of_core ? 9'001u : 0u,
+                    .range_faces = run.out_of_core ? 7'001u : 0u, .force_out_of_core = run.out_of_core};
+    auto result = run_reencode(governor, options, {});
+    EXPECT_EQ(result.faces, triangles);
+    EXPECT_EQ(result.report["out_of_core_dereference"].get<bool>(), run.out_of_core);
+    if (!run.out_of_core) EXPECT_EQ(result.report["blocks_in_memory"].get<bool>(), run.budget > (64ull << 20));
+    expect_bytes_of_first_run(reference, in, out, "resident run");
+    std::filesystem::remove(out);
+    EXPECT_EQ(governor.in_use(), 0u);
+  }
+}
+
 TEST(Reencode, BadInputEndsWithAOneLineErrorAndNothingLeftBehind) {
   TempDir dir, scratch_dir;
   {
