@@ -39,6 +39,7 @@
 #include <filesystem>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <utility>
 #include <vector>
 
@@ -239,6 +240,21 @@ class FramePool {
   // Keeps `buffer` under `lease`, unless `max_kept` are kept already (false: nothing
   // moved).
   bool keep(Bytes& buffer, Lease& lease, size_t max_kept = 4);
+  // For a pump choosing the buffer for its next read: `taken` keeps the buffer it
+  // holds if that one `fits`, else gets the first kept one that does; every other kept
+  // buffer goes back to the pool, or is freed once the pool is full.
+  void choose(std::optional<Kept>& taken, const std::function<bool(const Kept&)>& fits);
+  // A kept buffer of at least `capacity` bytes out of the pool, if there is one.
+  std::optional<Kept> take(size_t capacity) {
+    std::lock_guard lock(mutex_);
+    for (size_t i = 0; i < kept_.size(); ++i) {
+      if (kept_[i].buffer.capacity() < capacity) continue;
+      std::optional<Kept> taken(std::move(kept_[i]));
+      kept_.erase(kept_.begin() + int64_t(i));
+      return taken;
+    }
+    return std::nullopt;
+  }
 
  private:
   std::mutex mutex_;

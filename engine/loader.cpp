@@ -1258,6 +1258,7 @@ class Loader {
             },
             cells_in_place ? id_triangle32_record_size + sizeof(uint32_t) : sizeof(BlockFace) + sizeof(uint32_t), false,
             cells_in_place, &buffers);
+        discard_frames(local.frames(c));  // their last read (the files go after the loop)
       }
       if (has_corners) {
         for_each_frame(
@@ -1369,6 +1370,17 @@ class Loader {
                      std::memcpy(out + 3 * (header.tag - first), records.data(), records.size());
                    },
                    {}, 0, false, false, buffers);
+  }
+
+  // Frames read for the last time: their pages serve the writes that follow
+  // (ScratchStore::discard), queued behind the reads.
+  void discard_frames(const std::vector<FrameRef>& frames) {
+    job_.io().submit(
+        "discard frames",
+        [this, frames] {
+          for (const FrameRef& ref : frames) scratch_.discard(ref.file, ref.offset, ref.bytes);
+        },
+        job_.error_handler());
   }
 
   void remove_files(const BucketSpill& spill) {
@@ -1487,20 +1499,10 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
     if (next == frames.size()) return uint64_t(1);
     const FrameRef& ref = frames[next];
     const uint64_t need = item_bytes(ref);
-    std::vector<Kept> freed = kept.take_all();  // all but the one taken go back
     // A buffer that holds the records and is no larger than the item's lease.
-    auto fits = [&](const Kept& kept) {
+    kept.choose(taken, [&](const Kept& kept) {
       return kept.buffer.capacity() >= room_for(ref) && kept.lease.bytes() <= need;
-    };
-    if (taken && !fits(*taken)) taken.reset();
-    for (Kept& one : freed) {
-      if (!taken && fits(one)) {
-        taken = std::move(one);
-      } else if (one.lease && !kept.keep(one.buffer, one.lease)) {
-        break;  // the pool filled meanwhile: the rest are freed
-      }
-    }
-    freed.clear();  // buffers freed, then their leases (releases wake waiters)
+    });
     return taken ? std::max<uint64_t>(need - taken->lease.bytes(), 1) : need;
   };
   pass.read = [&](FrameItem& item, Lease& lease) {
@@ -1546,6 +1548,19 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
     }
   } give_back_taken{kept, taken};
   run_stream_pass(job, pass);
+}
+
+void FramePool::choose(std::optional<Kept>& taken, const std::function<bool(const Kept&)>& fits) {
+  std::vector<Kept> freed = take_all();
+  if (taken && !fits(*taken)) taken.reset();
+  for (Kept& one : freed) {
+    if (!taken && fits(one)) {
+      taken = std::move(one);
+    } else if (one.lease && !keep(one.buffer, one.lease)) {
+      break;  // the pool filled meanwhile: the rest are freed
+    }
+  }
+  freed.clear();  // buffers freed, then their leases (releases wake waiters)
 }
 
 bool FramePool::keep(Bytes& buffer, Lease& lease, size_t max_kept) {

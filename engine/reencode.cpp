@@ -5,6 +5,9 @@
 #include <algorithm>
 #include <bit>
 #include <cstring>
+#include <optional>
+#include <span>
+#include <type_traits>
 
 #include "engine/process_memory.hpp"
 #include "engine/report.hpp"
@@ -91,14 +94,21 @@ void submit_float_vertices(Job& job, io::MeshWriter& writer, const float* xyz, u
 
 // Hands `count` PLY triangles, encoded at `bytes` (with the lease that covers them),
 // to the I/O thread to write.
+// With `spare`, the buffer is kept there once written (with its lease), for the next
+// to be encoded into: a fresh buffer is fresh pages, each faulted in (and on this
+// project's VM, each fetched from the host again).
 template <class Buffer>
 void submit_encoded_triangles(Job& job, io::MeshWriter& writer, Buffer bytes, uint64_t count, uint64_t max_index,
-                              Lease lease) {
+                              Lease lease, std::shared_ptr<FramePool> spare = nullptr) {
   auto held = std::make_shared<std::pair<Buffer, Lease>>(std::move(bytes), std::move(lease));
   job.io().submit(
       "write triangles",
-      [&writer, held, count, max_index] {
+      [&job, &writer, held, count, max_index, spare] {
         writer.write_encoded_triangles(reinterpret_cast<const char*>(held->first.data()), count, max_index);
+        if constexpr (std::is_same_v<Buffer, Bytes>) {
+          // Kept bytes are not released: waiters are woken to look again (see FramePool).
+          if (spare && spare->keep(held->first, held->second, 8)) job.governor().wake_all();
+        }
         held->first = Buffer();
         held->second.release();
       },
@@ -195,6 +205,7 @@ uint64_t write_resident_triangles_encoded(Job& job, LoadedMesh& mesh, io::MeshWr
   for (auto& cell : mesh.resident_blocks)
     for (Bytes& page : cell) pages.push_back(&page);
   uint64_t written = 0;
+  auto spare = std::make_shared<FramePool>();  // shared with the I/O tasks
   for (size_t first = 0; first < pages.size();) {
     size_t end = first;
     uint64_t n = 0;
@@ -202,11 +213,22 @@ uint64_t write_resident_triangles_encoded(Job& job, LoadedMesh& mesh, io::MeshWr
       n += pages[end++]->size() / record;
     }
     const uint64_t bytes_needed = n * io::ply_triangle_bytes;
-    Lease lease = job.governor().acquire(job.owner("triangle writes"), bytes_needed, bytes_needed,
-                                         [&job] { return job.stopped(); });
+    // A buffer written already, kept with its lease (see submit_encoded_triangles), or a
+    // new one; before waiting for memory, the kept ones go back.
+    Bytes bytes;
+    Lease lease;
+    if (std::optional<FramePool::Kept> kept = spare->take(bytes_needed)) {
+      lease = std::move(kept->lease);
+      bytes = std::move(kept->buffer);
+    } else if (!(lease = job.governor().try_acquire(job.owner("triangle writes"), bytes_needed))) {
+      job.io().drain();
+      spare->clear();
+      lease = job.governor().acquire(job.owner("triangle writes"), bytes_needed, bytes_needed,
+                                     [&job] { return job.stopped(); });
+    }
     job.check();
-    UninitializedVector<char> bytes(bytes_needed);
-    char* out = bytes.data();
+    bytes.resize(bytes_needed);
+    char* out = reinterpret_cast<char*>(bytes.data());
     uint64_t max_index = 0;
     for (size_t p = first; p < end; ++p) {
       Bytes& page = *pages[p];
@@ -217,12 +239,13 @@ uint64_t write_resident_triangles_encoded(Job& job, LoadedMesh& mesh, io::MeshWr
                                            std::min<uint64_t>(mesh.resident_blocks_lease.bytes(), page.capacity()));
       page = Bytes();
     }
-    submit_encoded_triangles(job, writer, std::move(bytes), n, max_index, std::move(lease));
+    submit_encoded_triangles(job, writer, std::move(bytes), n, max_index, std::move(lease), spare);
     written += n;
     first = end;
     job.progress(0.9 + 0.1 * double(first) / double(pages.size()), "write");
   }
   job.io().drain();
+  spare->clear();
   job.check();
   mesh.resident_blocks.clear();
   mesh.resident_blocks_lease.release();
@@ -298,6 +321,7 @@ uint64_t record_id(const std::byte* record, uint32_t record_size) {
 struct OutputPieces {
   bool ply = true;
   uint64_t piece_faces = 1;
+  std::shared_ptr<FramePool> spare;  // written pieces kept for reuse (their leases released when taken)
   std::vector<Bytes> pieces;
   std::vector<uint64_t> faces, max_index;
   uint64_t bytes_per_face() const { return ply ? io::ply_triangle_bytes : sizeof(Triangle); }
@@ -306,7 +330,15 @@ struct OutputPieces {
   void add(const Record* begin, const Record* end) {
     while (begin != end) {
       if (pieces.empty() || faces.back() == piece_faces) {
-        pieces.emplace_back(piece_faces * bytes_per_face());
+        // A kept piece is covered by the group's lease, as a new one would be.
+        std::optional<FramePool::Kept> kept = spare ? spare->take(piece_faces * bytes_per_face()) : std::nullopt;
+        if (kept) {
+          pieces.push_back(std::move(kept->buffer));
+          kept->lease.release();
+          pieces.back().resize(piece_faces * bytes_per_face());
+        } else {
+          pieces.emplace_back(piece_faces * bytes_per_face());
+        }
         faces.push_back(0);
         max_index.push_back(0);
       }
@@ -357,7 +389,7 @@ enum class Ordering { already, merged, sorted };
 // interleave little (a block's chunks and spanning faces). Past `max_breaks` places
 // where the order goes down, or `max_runs` runs, the records are gathered and sorted.
 template <class Record>
-Ordering merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPieces& out) {
+Ordering merge_in_face_id_order(Job& job, const std::vector<std::span<std::byte>>& frames, OutputPieces& out) {
   constexpr size_t max_breaks = 64, max_runs = 1024;
   struct Run {
     const Record* at;
@@ -365,7 +397,7 @@ Ordering merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPiec
   };
   std::vector<Run> runs;
   uint64_t n = 0;
-  for (const Bytes& frame : frames) {
+  for (const std::span<std::byte> frame : frames) {
     const auto* records = reinterpret_cast<const Record*>(frame.data());
     const uint64_t count = frame.size() / sizeof(Record);
     n += count;
@@ -385,13 +417,12 @@ Ordering merge_in_face_id_order(Job& job, std::vector<Bytes>& frames, OutputPiec
     out.add(all, all + n);
     return Ordering::sorted;
   }
-  if (breaks > max_breaks || runs.size() > max_runs) {  // gathered (each frame freed once copied) and sorted
+  if (breaks > max_breaks || runs.size() > max_runs) {  // gathered and sorted
     UninitializedVector<Record> all(n);
     uint64_t at = 0;
-    for (Bytes& frame : frames) {
+    for (const std::span<std::byte> frame : frames) {
       std::memcpy(static_cast<void*>(all.data() + at), frame.data(), frame.size());
       at += frame.size() / sizeof(Record);
-      frame = Bytes();
     }
     job.arena().execute([&] { tbb::parallel_sort(all.begin(), all.end(), by_id); });
     out.add(all.data(), all.data() + n);
@@ -437,12 +468,14 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
                                            : std::max<uint64_t>(job.governor().available() / 2 / per_face, 1024);
   const std::string owner = job.owner("block in face-id order");
   FaceIdOrderStats stats;
-  auto merge = [&](std::vector<Bytes>& frames, OutputPieces& out) {
+  // Written output pieces, kept for the next groups' (a whole-blocks pass's only).
+  // Shared with the I/O tasks, which may outlive this call when it throws.
+  auto spare_pieces = std::make_shared<FramePool>();
+  auto merge = [&](const std::vector<std::span<std::byte>>& frames, OutputPieces& out) {
     out.ply = ply;
     out.piece_faces = (2u << 20) / out.bytes_per_face();
     const Ordering ordering = record == id_triangle32_record_size ? merge_in_face_id_order<IdTriangle32>(job, frames, out)
                                                                   : merge_in_face_id_order<IdTriangle64>(job, frames, out);
-    release_memory(frames);
     out.finish();
     return ordering;
   };
@@ -452,7 +485,7 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
       Lease piece_lease = lease.split(std::min<uint64_t>(lease.bytes(), out.pieces[p].capacity()));
       if (ply) {
         submit_encoded_triangles(job, writer, std::move(out.pieces[p]), out.faces[p], out.max_index[p],
-                                 std::move(piece_lease));
+                                 std::move(piece_lease), out.spare);
       } else {
         submit_triangles(job, writer, std::move(out.pieces[p]), out.faces[p], std::move(piece_lease));
       }
@@ -464,13 +497,33 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
     job.progress(0.9 + 0.1 * double(stats.written) / double(std::max<uint64_t>(mesh.face_count, 1)), "write");
   };
 
-  // Whole blocks that fit, [first, end): a stream pass, an item a block.
+  // Whole blocks that fit, [first, end): a stream pass, an item a block. A block's
+  // frames are read whole (header and payload, one read each) into one buffer, at
+  // 8-byte aligned offsets, and raw records are merged from where they lie. The buffer
+  // an item leaves is read into again by a later one (a FramePool, as for_each_frame's:
+  // fresh buffers are fresh pages, faulted in one by one, most of this pass's faults).
+  // A kept buffer serves a block whose frames it holds, and whose lease it does not
+  // exceed: the lease counts a decoded copy of the records that raw frames never make,
+  // so a buffer up to that much larger than the frames stays within it.
   struct BlockItem {
     uint32_t cell = 0;
-    std::vector<std::pair<std::array<std::byte, frame_header_bytes>, Bytes>> encoded;
+    Bytes frames;
+    std::vector<std::pair<uint64_t, uint64_t>> at;  // (offset, bytes) of each frame in `frames`
     OutputPieces out;
     Ordering ordering = Ordering::already;
   };
+  auto frames_bytes = [&](uint32_t cell) {
+    uint64_t bytes = 0;
+    for (const FrameRef& ref : mesh.blocks[cell]) bytes += (ref.bytes + 7) / 8 * 8;
+    return bytes;
+  };
+  // How much larger than its frames a block's buffer may be: raw frames are merged
+  // where they lie, so the decoded records the lease counts are never made.
+  const bool raw_frames = scratch.codec().raw;
+  auto slack = [&](uint32_t cell) { return raw_frames ? mesh.block_faces[cell] * record : 0; };
+  FramePool pool;
+  using Kept = FramePool::Kept;
+  std::optional<Kept> taken;  // the pump's (I/O thread): for block `next`
   auto write_whole_blocks = [&](uint32_t first, uint32_t end) {
     uint32_t next = first;
     auto skip_empty = [&] {
@@ -485,37 +538,71 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
     pass.next_item_bytes = [&] {
       skip_empty();
       if (next == end) return uint64_t(1);
-      uint64_t bytes = mesh.block_faces[next] * (per_face - record);  // decoded and output records
-      for (const FrameRef& ref : mesh.blocks[next]) bytes += ref.bytes;
-      return bytes;
+      const uint64_t room = frames_bytes(next);
+      const uint64_t need = mesh.block_faces[next] * (per_face - record) + room;  // decoded and output records
+      pool.choose(taken, [&](const Kept& kept) {
+        return kept.buffer.capacity() >= room && kept.lease.bytes() <= room + slack(next);
+      });
+      return taken ? std::max<uint64_t>(need - taken->lease.bytes(), 1) : need;
     };
-    pass.read = [&](BlockItem& item, Lease&) {
+    pass.read = [&](BlockItem& item, Lease& lease) {
       skip_empty();
       if (next == end) return false;
       item.cell = next++;
+      if (taken) {
+        item.frames = std::move(taken->buffer);
+        lease.merge(std::move(taken->lease));
+        taken.reset();
+      }
+      const uint64_t room = frames_bytes(item.cell);
+      // A fresh buffer gets room for larger blocks later, within what the lease allows.
+      if (item.frames.capacity() < room) item.frames.reserve(std::min(room + room / 2, room + slack(item.cell)));
+      item.frames.resize(room);
+      uint64_t offset = 0;
       for (const FrameRef& ref : mesh.blocks[item.cell]) {
-        auto& [header, payload] = item.encoded.emplace_back();
         if (ref.bytes < frame_header_bytes) throw Error(ErrorKind::internal, "a block frame shorter than its header");
-        scratch.read(ref.file, ref.offset, header.data(), frame_header_bytes);
-        payload.resize(ref.bytes - frame_header_bytes);
-        scratch.read(ref.file, ref.offset + frame_header_bytes, payload.data(), payload.size());
+        scratch.read(ref.file, ref.offset, item.frames.data() + offset, ref.bytes);
+        scratch.discard(ref.file, ref.offset, ref.bytes);  // read once: its pages serve the output's writes
+        item.at.emplace_back(offset, ref.bytes);
+        offset += (ref.bytes + 7) / 8 * 8;
         job.stage("write").bytes_read += ref.bytes;
       }
       return true;
     };
     pass.transform = [&](BlockItem& item, Lease&) {
-      std::vector<Bytes> frames;
+      item.out.spare = spare_pieces;
+      std::vector<std::span<std::byte>> records;
+      std::vector<Bytes> decoded(item.at.size());  // zstd frames' records
       uint64_t faces = 0;
-      for (auto& [header, payload] : item.encoded) {
-        faces += decode_frame_payload(header.data(), payload, record, "block frame").count;
-        frames.push_back(std::move(payload));
+      for (size_t f = 0; f < item.at.size(); ++f) {
+        std::byte* frame = item.frames.data() + item.at[f].first;
+        const FrameHeader header = decode_frame_in_place(frame, item.at[f].second, record, decoded[f], "block frame");
+        faces += header.count;
+        records.push_back(header.raw ? std::span<std::byte>(frame + frame_header_bytes, header.count * record)
+                                     : std::span<std::byte>(decoded[f]));
       }
-      release_memory(item.encoded);
       if (faces != mesh.block_faces[item.cell]) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
-      item.ordering = merge(frames, item.out);
+      item.ordering = merge(records, item.out);
     };
-    pass.sink = [&](BlockItem& item, Lease& lease) { submit(item.out, item.ordering, lease); };
+    pass.sink = [&](BlockItem& item, Lease& lease) {
+      // The frames' buffer is kept (its part of the lease with it) before the output
+      // pieces take theirs.
+      if (pool.keep(item.frames, lease)) job.governor().wake_all();
+      submit(item.out, item.ordering, lease);
+    };
+    // Parked: nothing kept but the buffer taken for this read (counted in what it waits for).
+    pass.parked_for_memory = [&] {
+      pool.clear();
+      spare_pieces->clear();
+    };
     run_stream_pass(job, pass);
+    // Nothing kept past the pass (its last pieces written first): a large block next
+    // waits for memory.
+    taken.reset();
+    pool.clear();
+    job.io().drain();
+    spare_pieces->clear();
+    job.check();
   };
 
   // A block too large for one group: its ids counted by slab, slabs grouped while they
@@ -582,7 +669,8 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
           0);
       if (at != group[0].size()) throw Error(ErrorKind::internal, "a block holds fewer faces than it counted");
       OutputPieces out;
-      const Ordering ordering = merge(group, out);
+      const Ordering ordering = merge({std::span<std::byte>(group[0])}, out);
+      release_memory(group);
       submit(out, ordering, lease);
       // The output pieces took their part of the lease to the I/O thread; once they
       // are written it is free again, and the working set is made whole for the next

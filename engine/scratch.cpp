@@ -267,6 +267,24 @@ FrameHeader decode_frame_payload(const std::byte* header_bytes, Bytes& payload, 
   return header;
 }
 
+FrameHeader decode_frame_in_place(const std::byte* frame, size_t size, uint32_t record_size, Bytes& decoded,
+                                  const std::string& where) {
+  if (size < frame_header_bytes) corrupt(where, "shorter than its header");
+  const uint64_t max_records = (uint64_t(1) << 40) / std::max<uint32_t>(record_size, 1);
+  const FrameHeader header = check_header(frame, size - frame_header_bytes, record_size, max_records, where);
+  const std::byte* payload = frame + frame_header_bytes;
+  const size_t raw = header.count * record_size;
+  if (header.raw) {
+    if (get<uint64_t>(payload + raw) != io::xxh3(payload, raw)) corrupt(where, "payload checksum mismatch");
+    return header;
+  }
+  decoded.resize(raw);
+  size_t got = ZSTD_decompressDCtx(contexts().d, decoded.data(), raw, payload, header.payload_bytes);
+  if (ZSTD_isError(got)) corrupt(where, ZSTD_getErrorName(got));
+  if (got != raw) corrupt(where, "payload decodes to the wrong size");
+  return header;
+}
+
 FrameHeader decode_frame_into(const std::byte* frame, size_t size, uint32_t record_size,
                               void* out, uint64_t max_records, const std::string& where) {
   if (size < frame_header_bytes) corrupt(where, "shorter than its header");
@@ -452,7 +470,8 @@ void ScratchStore::read(uint32_t id, uint64_t offset, void* out, size_t size) {
   File& f = file(id);
   if (!f.final) throw Error(ErrorKind::internal, "scratch: read of unfinished " + f.name);
   if (f.fd < 0) {
-    f.fd = ::open(path_of(f).c_str(), O_RDONLY | O_CLOEXEC);
+    // Read-write: discard punches holes through it.
+    f.fd = ::open(path_of(f).c_str(), O_RDWR | O_CLOEXEC);
     if (f.fd < 0) io_failure(path_of(f), "open", errno);
   }
   char* p = static_cast<char*>(out);
@@ -470,6 +489,12 @@ void ScratchStore::read(uint32_t id, uint64_t offset, void* out, size_t size) {
   }
   std::lock_guard lock(mutex_);
   read_ += size;
+}
+
+void ScratchStore::discard(uint32_t id, uint64_t offset, size_t size) {
+  File& f = file(id);
+  if (!f.final || f.fd < 0 || size == 0) return;
+  (void)::fallocate(f.fd, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, off_t(offset), off_t(size));
 }
 
 void ScratchStore::remove(uint32_t id) {
