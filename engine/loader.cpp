@@ -1281,6 +1281,7 @@ class Loader {
               for (uint64_t i = 0; i < header.count; ++i) resolved->add(uint32_t(res[i].corner / 3 / range), &res[i]);
             },
             sizeof(ResolvedCorner), false, true, &buffers);
+        discard_frames(corners.frames(c));  // their last read (the files go after the loop)
       }
       job_.progress(0.4 + 0.4 * double(c + 1) / chunks, "resolve");
     }
@@ -1330,6 +1331,7 @@ class Loader {
                        for (uint64_t i = 0; i < header.count; ++i) ++filled[res[i].corner / 3 - first_face];
                      },
                      0, false, false, &frame_buffers);
+      discard_frames(resolved_corners.frames(r));  // their last read (the files go after the loop)
       Span span(&job_.trace(), &job_.activity(), "assemble faces");
       BlockFace face;
       for (uint64_t i = 0; i < n; ++i) {

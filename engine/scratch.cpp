@@ -493,8 +493,13 @@ void ScratchStore::read(uint32_t id, uint64_t offset, void* out, size_t size) {
 
 void ScratchStore::discard(uint32_t id, uint64_t offset, size_t size) {
   File& f = file(id);
-  if (!f.final || f.fd < 0 || size == 0) return;
-  (void)::fallocate(f.fd, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, off_t(offset), off_t(size));
+  if (!f.final || f.fd < 0) return;
+  // Whole pages only: a page shared with a frame not read yet stays (a partial one
+  // would be zeroed in place, dirtied for nothing).
+  static const uint64_t page = uint64_t(::sysconf(_SC_PAGESIZE));
+  const uint64_t begin = (offset + page - 1) / page * page, end = (offset + size) / page * page;
+  if (end <= begin) return;
+  (void)::fallocate(f.fd, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, off_t(begin), off_t(end - begin));
 }
 
 void ScratchStore::remove(uint32_t id) {

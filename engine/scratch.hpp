@@ -194,9 +194,9 @@ class ScratchStore {
   // The same for bytes in several pieces, written in order as one (vectored) write.
   uint64_t append_pieces(uint32_t file, const std::vector<Piece>& pieces);
   void read(uint32_t file, uint64_t offset, void* out, size_t size);
-  // Bytes [offset, offset + size) of a finalized file will not be read again: their
-  // whole pages leave the page cache and the disk now (a hole; the file keeps its
-  // size), so that the writes that follow reuse those pages rather than take fresh
+  // Bytes [offset, offset + size) of a finalized file (read at least once) will not be
+  // read again: the whole pages among them leave the page cache and the disk now (a
+  // hole: zeros; the file keeps its size), so that the writes that follow reuse those pages rather than take fresh
   // ones. Fresh page-cache pages cost several times a reused one here (a VM whose
   // freed memory goes back to the host: 380 MB written into fresh pages took 0.5-1.0
   // CPU-s against 0.09 into pages just freed). Advice: a file system without holes

@@ -83,6 +83,29 @@ TEST(Frame, PayloadReadApartFromItsHeaderDecodesBothCodecsAndCatchesCorruption) 
   }
 }
 
+TEST(Frame, AWholeFrameDecodesInPlaceBothCodecsAndCatchesCorruption) {
+  std::vector<uint32_t> values(3000);
+  std::iota(values.begin(), values.end(), 7);
+  for (FrameCodec codec : {FrameCodec::uncompressed(), FrameCodec::zstd()}) {
+    Bytes frame = encode_frame(9, 4, values.data(), values.size(), codec);
+    Bytes decoded;
+    FrameHeader header = decode_frame_in_place(frame.data(), frame.size(), 4, decoded, "t");
+    EXPECT_EQ(header.tag, 9u);
+    EXPECT_EQ(header.count, values.size());
+    EXPECT_EQ(header.raw, codec.raw);
+    // A raw frame's records are where they lie; a zstd frame's are decoded apart.
+    const std::byte* records = codec.raw ? frame.data() + frame_header_bytes : decoded.data();
+    EXPECT_EQ(decoded.empty(), codec.raw);
+    EXPECT_EQ(std::memcmp(records, values.data(), values.size() * 4), 0);
+    Bytes bad = frame;
+    bad[frame_header_bytes + 100] ^= std::byte{0x04};
+    EXPECT_THROW(decode_frame_in_place(bad.data(), bad.size(), 4, decoded, "t"), Error);
+    EXPECT_THROW(decode_frame_in_place(frame.data(), frame.size() - 1, 4, decoded, "t"), Error);
+    EXPECT_THROW(decode_frame_in_place(frame.data(), frame.size(), 8, decoded, "t"), Error);  // wrong record size
+    EXPECT_THROW(decode_frame_in_place(frame.data(), frame_header_bytes - 1, 4, decoded, "t"), Error);
+  }
+}
+
 TEST(Frame, RawFramesRoundTripFromPiecesAndCatchCorruption) {
   std::vector<uint32_t> values(3000);
   std::iota(values.begin(), values.end(), 0);
@@ -208,6 +231,27 @@ TEST(ScratchStore, FilesAreCompleteOnlyWhenFinalizedAndAllGoAtTheEnd) {
     EXPECT_EQ(store.bytes_written(), 11u);
   }
   EXPECT_FALSE(std::filesystem::exists(dir));
+}
+
+// Discarded bytes leave the file's pages (a hole: zeros, same size); the rest stays.
+TEST(ScratchStore, DiscardedPagesGoAndTheRestOfTheFileStays) {
+  TempDir tmp;
+  ScratchStore store(tmp.path(), 1 << 20);
+  uint32_t f = store.create_file("blocks-0");
+  constexpr size_t page = 4096;
+  std::string bytes = std::string(page, 'a') + std::string(page, 'b') + std::string(page, 'c');
+  store.append(f, bytes.data(), bytes.size());
+  store.finalize(f);
+  std::string got(bytes.size(), '?');
+  store.read(f, 0, got.data(), got.size());
+  ASSERT_EQ(got, bytes);
+  store.discard(f, page, page);
+  EXPECT_EQ(std::filesystem::file_size(store.dir() / "blocks-0"), bytes.size());
+  store.read(f, 0, got.data(), got.size());
+  EXPECT_EQ(got.substr(0, page), bytes.substr(0, page));
+  EXPECT_EQ(got.substr(2 * page), bytes.substr(2 * page));
+  if (got.substr(page, page) == bytes.substr(page, page)) GTEST_SKIP() << "this file system keeps discarded bytes";
+  EXPECT_EQ(got.substr(page, page), std::string(page, '\0'));
 }
 
 TEST(ScratchStore, NotEnoughFreeSpaceIsRefusedUpFront) {
