@@ -277,6 +277,7 @@ struct PatchDecimator::Scratch {
   std::vector<uint32_t> next, prev;  // fan_links()
   std::vector<double> areas;
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
+  uint64_t frozen = 0;     // refreshes skipped at frozen vertices (prepare's counter)
 };
 
 PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : params_(params) {
@@ -1073,6 +1074,13 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
         (keep_stale || cut->cost < best_cost_[v]))
       return;
     dirty_[v] = 1;
+    if (frozen(v)) {
+      // No exact decision reads v's best (see frozen()): none, so v is in no LME. Its
+      // dirty_ stays set for update_partners, which undoes its old pair.
+      best_[v] = kNone;
+      ++s.frozen;
+      return;
+    }
     ++s.refreshed;
     refresh_best(v, s, !touched_[v] && !stale, cut);
     if (dirty_[v] == kDirtyStale && !deferred.load(std::memory_order_relaxed))
@@ -1084,7 +1092,10 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
     stale_floor_ = keep_stale || !has_stale_ ? *cut : std::min(stale_floor_, *cut);
     has_stale_ = true;
   }
-  for (const Scratch& s : scratch) refreshes_ += s.refreshed;
+  for (const Scratch& s : scratch) {
+    refreshes_ += s.refreshed;
+    frozen_refreshes_ += s.frozen;
+  }
   bests_exact_ = !cut;
   update_partners();
   // Candidates are marked (kCandidate at the LME's end with the smaller global id),
@@ -1285,6 +1296,16 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
   for (const auto& c : candidates_) {
     if (cut.key < c.key) break;
     if (cut.single_face_only && c.faces_removed != 1) continue;
+    if (!c.owned && !c.exact && trust_dist_[c.keep] <= kDecisionRadius &&
+        trust_dist_[c.remove] <= kDecisionRadius) {
+      // Both ends within kDecisionRadius rings of untrusted state: the collapse would
+      // change faces within kTrustSpread rings only, all untrusted (and, not owned,
+      // frozen) from this round on. One end further out (an edge from ring 4 to ring
+      // 5) still collapses: its decision reads the untrusted set's outer ring only by
+      // position, which is the global one, and its collapse reaches ring 6, trusted.
+      ++frozen_collapses_;
+      continue;
+    }
     candidates_[chosen_count++] = c;
   }
   candidates_.resize(chosen_count);
@@ -1294,8 +1315,13 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
     // collapses change faces one ring further: all of that is untrusted from now on.
     if (trust_dist_.size() != pos_.size())
       throw std::logic_error("PatchDecimator::apply_cut without prepare_round");
-    for (uint32_t v = 0; v < pos_.size(); ++v)
-      if (trust_dist_[v] <= kTrustSpread) vflag_[v] |= kUntrusted;
+    for (uint32_t v = 0; v < pos_.size(); ++v) {
+      if (trust_dist_[v] > kTrustSpread) continue;
+      // Newly frozen: the next prepare drops its best (and LME pair), even when nothing
+      // near it changes.
+      if ((vflag_[v] & (kUntrusted | kOwned | kDead)) == 0) raise_flag(dirty_[v]);
+      vflag_[v] |= kUntrusted;
+    }
     trust_dist_.clear();
   }
   // Each collapse writes the kept vertex's merged corner list to its own slice of the

@@ -51,8 +51,12 @@
 // - Ownership: each candidate is counted (summaries, owned_candidates()) only by the
 //   patch owning its kept vertex (`PatchInput::owned_vertex`), and only when exact;
 //   an owned inexact candidate is counted in RoundSummary::inexact_candidates (the
-//   pipeline reports 'halo too small'). Every candidate of the patch is collapsed by
-//   apply_cut, owned or not, so the halo evolves like the global mesh while trusted.
+//   pipeline reports 'halo too small'). apply_cut collapses every candidate under the
+//   cut, owned or not, so the halo evolves like the global mesh while trusted, except
+//   where nothing exact can see it: untrusted vertices that are not owned are FROZEN
+//   (no best edge, so in no LME), and inexact candidates not owned with both ends
+//   within kDecisionRadius rings of untrusted state are not collapsed (frozen()).
+//   Owned untrusted vertices run as before.
 // - extract() returns the owned faces with their vertices' (gid, position, quadric,
 //   lock, degree); PatchOutput::untrusted_vertices counts output vertices that are not
 //   trusted (must be 0 for the output to be exact).
@@ -280,6 +284,10 @@ class PatchDecimator {
   // reports and tests.
   uint64_t restored_bests() const { return restored_bests_; }
   uint64_t refreshes() const { return refreshes_; }
+  // Work skipped at frozen vertices (see frozen()): refreshes of their best edge, and
+  // inexact candidates not owned that were under the cut but not collapsed.
+  uint64_t frozen_refreshes() const { return frozen_refreshes_; }
+  uint64_t frozen_collapses() const { return frozen_collapses_; }
   // The owned faces (all faces with owned_only = false, for diagnostics) and their
   // vertices.
   PatchOutput extract(bool owned_only = true) const;
@@ -352,6 +360,16 @@ class PatchDecimator {
   // at 0, over the live faces.
   void spread_distances(int radius, std::vector<uint32_t> frontier, std::vector<uint8_t>& dist) const;
   void spread_untrusted(int radius);
+  // Untrusted and not owned: nothing exact reads the vertex's state. An exact candidate
+  // reads kDecisionRadius rings around its endpoints, all trusted; untrusted state
+  // spreads kTrustSpread rings before each round's collapses, which covers whatever
+  // differs there (any decision within kDecisionRadius rings, its collapse one ring
+  // further), so the trusted part evolves the same whether the frozen vertices
+  // collapse or not. Such a vertex keeps no best edge (no refresh, no LME), and an
+  // inexact candidate not owned is not collapsed. Owned untrusted vertices run as
+  // before: their candidates are RoundSummary::inexact_candidates, the halo-too-small
+  // signal.
+  bool frozen(uint32_t v) const { return (vflag_[v] & (kUntrusted | kOwned | kDead)) == kUntrusted; }
 
   DecimateParams params_;
   // vertices
@@ -395,6 +413,7 @@ class PatchDecimator {
   uint64_t dropped_faces_ = 0;
   uint64_t untrusted_count_ = 0;
   uint64_t restored_bests_ = 0, refreshes_ = 0;
+  uint64_t frozen_refreshes_ = 0, frozen_collapses_ = 0;
   // QEMFLOW_VERIFY_CARRIED: the vertices restore_bests restored, until the first
   // prepare checks them (empty otherwise).
   std::vector<uint8_t> verify_restored_;

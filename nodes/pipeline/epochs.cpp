@@ -1436,6 +1436,9 @@ struct Runner {
         d.prepare_owned_summary_round();
         // Without rounds the summary's prepare is the first.
         if (plan.cuts.empty()) stats.first_round_refreshes += d.refreshes();
+        stats.patch_refreshes += d.refreshes();
+        stats.frozen_refreshes += d.frozen_refreshes();
+        stats.frozen_collapses += d.frozen_collapses();
         summary = d.summarize();
         if (candidates) owned = exact_cut_share(d.owned_candidates(), needed);
         clock.charge(kSummary);

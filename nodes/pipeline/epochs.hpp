@@ -142,6 +142,9 @@ struct OocStats {
   // best-edge refreshes the patches' first prepare still ran (the first round's, or the
   // summary's in a pass without rounds).
   uint64_t carried_bests = 0, in_core_carried_bests = 0, first_round_refreshes = 0;
+  // Patch work: best-edge refreshes run, and those skipped at frozen (untrusted, not
+  // owned) vertices with the collapses skipped there (PatchDecimator::frozen_refreshes).
+  uint64_t patch_refreshes = 0, frozen_refreshes = 0, frozen_collapses = 0;
   // Where the out-of-core patch work goes (redos included): wall and process CPU seconds
   // per phase of run_part, in this order: gather (plan, read, filter), build (BFS halo,
   // PatchInput), setup (PatchDecimator's constructor), first_round (the epoch's first

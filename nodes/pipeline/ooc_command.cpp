@@ -121,6 +121,9 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["carried_bests"] = st.carried_bests;
     report["in_core_carried_bests"] = st.in_core_carried_bests;
     report["first_round_refreshes"] = st.first_round_refreshes;
+    report["patch_refreshes"] = st.patch_refreshes;
+    report["frozen_refreshes"] = st.frozen_refreshes;
+    report["frozen_collapses"] = st.frozen_collapses;
     for (size_t i = 0; i < OocStats::kPhases; ++i)
       report["patch_phases"][OocStats::kPhaseNames[i]] = {{"seconds", st.phase_wall[i]}, {"cpu_seconds", st.phase_cpu[i]}};
     engine::report_scratch(report, scratch);
