@@ -694,6 +694,16 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   // prepare_round compacted every list that lost a face: all are live here.
   const std::span<const uint32_t> corners = corners_of(v);
   fan_neighbors(v, corners, s);
+  // Every neighbour's id is read below, and often its position and quadric (an
+  // unknown cost): start all their loads before the first is needed (session 10:
+  // -4.5% CPU on the 2M blob; packing them into one record was slower).
+  for (const FanEdge& e : s.fan()) {
+    __builtin_prefetch(&vgid_[e.other]);
+    __builtin_prefetch(&pos_[e.other]);
+    const char* q = reinterpret_cast<const char*>(&quadric_[e.other]);
+    __builtin_prefetch(q);
+    __builtin_prefetch(q + sizeof(Quadric) - 1);
+  }
   s.options.clear();
   const bool charged = params_.deviation_weight > 0.0;
   for (const auto& [w, corner, twin] : s.fan()) {
