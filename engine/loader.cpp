@@ -326,46 +326,41 @@ class VertexFrameWriter {
   std::vector<uint64_t> offsets_;
 };
 
-// Triangle-only block records kept in memory: fixed pages of records per cell, so
-// nothing is ever reallocated and the memory held is what bytes_for() leased.
+// Triangle-only block records kept in memory: pages of records per cell, so nothing
+// is ever reallocated and the memory held is within what bytes_for() leased. A cell's
+// pages double from first_page_bytes up to page_bytes: a cell's unused room is its
+// last page's, at most min(page_bytes, its records' bytes + first_page_bytes), where
+// fixed 256 KiB pages leased 256 KiB a cell however few faces it got (a small mesh
+// with many cells leased several times its records).
 class ResidentBlocks {
  public:
   static constexpr uint64_t page_bytes = 256 << 10;
+  static constexpr uint64_t first_page_bytes = 4 << 10;
   static uint64_t bytes_for(uint64_t faces, uint32_t record_size, uint32_t cells) {
-    return faces * record_size + uint64_t(cells) * page_bytes;
+    const uint64_t records = faces * record_size;
+    return records + std::min(uint64_t(cells) * page_bytes, records + uint64_t(cells) * first_page_bytes);
   }
   ResidentBlocks(uint64_t faces, uint32_t record_size, uint32_t cells, Lease lease)
-      : record_size_(record_size), page_records_(page_bytes / record_size), faces_left_(faces),
-        pages_(cells), lease_(std::move(lease)) {}
+      : record_size_(record_size), faces_left_(faces), pages_(cells), lease_(std::move(lease)) {}
   bool fits(uint64_t faces) const { return faces <= faces_left_; }
-  void add(uint32_t cell, const std::byte* record) {
-    auto& pages = pages_[cell];
-    if (pages.empty() || pages.back().size() == page_records_ * record_size_) {
-      pages.emplace_back();
-      pages.back().reserve(page_records_ * record_size_);
-    }
-    Bytes& page = pages.back();
-    const size_t at = page.size();
-    page.resize(at + record_size_);
-    if (record_size_ == triangle32_record_size) {
-      std::memcpy(page.data() + at, record, triangle32_record_size);  // no libc call
-    } else {
-      std::memcpy(page.data() + at, record, record_size_);
-    }
-    --faces_left_;
-  }
+  void add(uint32_t cell, const std::byte* record) { add_run(cell, record, 1); }
   void add_run(uint32_t cell, const std::byte* records, uint64_t count) {
     auto& pages = pages_[cell];
     while (count > 0) {
-      if (pages.empty() || pages.back().size() == page_records_ * record_size_) {
+      if (pages.empty() || pages.back().size() == pages.back().capacity()) {
+        const uint64_t bytes = pages.empty() ? first_page_bytes : std::min(page_bytes, 2 * pages.back().capacity());
         pages.emplace_back();
-        pages.back().reserve(page_records_ * record_size_);
+        pages.back().reserve(bytes / record_size_ * record_size_);
       }
       Bytes& page = pages.back();
       const size_t at = page.size();
-      const uint64_t n = std::min<uint64_t>(count, page_records_ - at / record_size_);
+      const uint64_t n = std::min<uint64_t>(count, (page.capacity() - at) / record_size_);
       page.resize(at + n * record_size_);
-      std::memcpy(page.data() + at, records, n * record_size_);
+      if (n == 1 && record_size_ == triangle32_record_size) {
+        std::memcpy(page.data() + at, records, triangle32_record_size);  // no libc call
+      } else {
+        std::memcpy(page.data() + at, records, n * record_size_);
+      }
       records += n * record_size_;
       count -= n;
       faces_left_ -= n;
@@ -378,7 +373,6 @@ class ResidentBlocks {
 
  private:
   uint32_t record_size_;
-  uint64_t page_records_;
   uint64_t faces_left_;
   std::vector<std::vector<Bytes>> pages_;
   Lease lease_;
