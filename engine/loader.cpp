@@ -328,27 +328,34 @@ class VertexFrameWriter {
 
 // Triangle-only block records kept in memory: pages of records per cell, so nothing
 // is ever reallocated and the memory held is within what bytes_for() leased. A cell's
-// pages double from first_page_bytes up to page_bytes: a cell's unused room is its
-// last page's, at most min(page_bytes, its records' bytes + first_page_bytes), where
+// pages double from first_page_bytes() up to page_bytes: a cell's unused room is its
+// last page's, at most min(page_bytes, its records' bytes + the first page), where
 // fixed 256 KiB pages leased 256 KiB a cell however few faces it got (a small mesh
 // with many cells leased several times its records).
 class ResidentBlocks {
  public:
   static constexpr uint64_t page_bytes = 256 << 10;
-  static constexpr uint64_t first_page_bytes = 4 << 10;
+  // A cell's first page: about its share of the records, between 4 KiB and page_bytes,
+  // so that big cells start with the 256 KiB pages they would grow to anyway.
+  static uint64_t first_page_bytes(uint64_t faces, uint32_t record_size, uint32_t cells) {
+    const uint64_t share = faces * record_size / std::max<uint32_t>(cells, 1);
+    return std::clamp<uint64_t>(std::bit_ceil(std::max<uint64_t>(share, 1)), 4 << 10, page_bytes);
+  }
   static uint64_t bytes_for(uint64_t faces, uint32_t record_size, uint32_t cells) {
     const uint64_t records = faces * record_size;
-    return records + std::min(uint64_t(cells) * page_bytes, records + uint64_t(cells) * first_page_bytes);
+    const uint64_t first = first_page_bytes(faces, record_size, cells);
+    return records + std::min(uint64_t(cells) * page_bytes, records + uint64_t(cells) * first);
   }
   ResidentBlocks(uint64_t faces, uint32_t record_size, uint32_t cells, Lease lease)
-      : record_size_(record_size), faces_left_(faces), pages_(cells), lease_(std::move(lease)) {}
+      : record_size_(record_size), first_page_bytes_(first_page_bytes(faces, record_size, cells)),
+        faces_left_(faces), pages_(cells), lease_(std::move(lease)) {}
   bool fits(uint64_t faces) const { return faces <= faces_left_; }
   void add(uint32_t cell, const std::byte* record) { add_run(cell, record, 1); }
   void add_run(uint32_t cell, const std::byte* records, uint64_t count) {
     auto& pages = pages_[cell];
     while (count > 0) {
       if (pages.empty() || pages.back().size() == pages.back().capacity()) {
-        const uint64_t bytes = pages.empty() ? first_page_bytes : std::min(page_bytes, 2 * pages.back().capacity());
+        const uint64_t bytes = pages.empty() ? first_page_bytes_ : std::min(page_bytes, 2 * pages.back().capacity());
         pages.emplace_back();
         pages.back().reserve(bytes / record_size_ * record_size_);
       }
@@ -373,6 +380,7 @@ class ResidentBlocks {
 
  private:
   uint32_t record_size_;
+  uint64_t first_page_bytes_;
   uint64_t faces_left_;
   std::vector<std::vector<Bytes>> pages_;
   Lease lease_;
