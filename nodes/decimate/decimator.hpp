@@ -95,14 +95,9 @@ inline constexpr int kInitialQuadricRadius = 2;
 // Rings best(v) reads (the validity and cost of every edge at v): a best edge computed
 // where every vertex within this many rings is trusted is the global one.
 inline constexpr int kBestRadius = 2;
-// PatchDecimator::prepare_owned_summary_round's rings around the owned part: the most an
-// owned candidate's status reads. Its smaller-gid end v is owned (ring 0), the other end
-// is in ring 1, the vertices u of both ends' faces in rings <= 2, and u's pair reads
-// best(u) and best(best(u)) (ring <= 3); extract() exports bests of owned faces' corners
-// (ring 0). A vertex in ring 3 whose best leads to ring 4 (not refreshed) may pair
-// wrongly, but no owned candidate reads a ring-3 vertex's pair. It was 5 (2 to spare):
-// the demo's summary rounds refreshed 5.7% more vertices for the same bits.
-inline constexpr int kOwnedSummaryRadius = 3;
+// PatchDecimator::prepare_owned_summary_round's rings around the owned part: 3 are read
+// (an owned candidate's endpoints' 1-ring neighbours' partners' bests), 2 to spare.
+inline constexpr int kOwnedSummaryRadius = 5;
 // QEMFLOW_VERIFY_CARRIED=1 (see the contract): checks carried state (here: restored
 // bests; the out-of-core pipeline also checks that every copy of a repeated vertex
 // record agrees). Read once per process.

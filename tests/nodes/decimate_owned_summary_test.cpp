@@ -100,48 +100,5 @@ TEST(DecimateOwnedSummary, EqualsAFullPrepareOnTheOwnedPartAndRefreshesLess) {
   EXPECT_TRUE(near.extract(false).best_gids.empty());
 }
 
-// Rings from `seeds` over the faces' edges, capped at `radius` + 1.
-std::vector<int> rings_from(const PatchInput& in, const std::vector<uint8_t>& seeds, int radius) {
-  std::vector<std::vector<uint32_t>> adj(in.positions.size());
-  for (const auto& t : in.faces)
-    for (int k = 0; k < 3; ++k) adj[t[k]].push_back(t[(k + 1) % 3]), adj[t[(k + 1) % 3]].push_back(t[k]);
-  std::vector<int> dist(in.positions.size(), radius + 1);
-  std::vector<uint32_t> frontier, next;
-  for (uint32_t v = 0; v < seeds.size(); ++v)
-    if (seeds[v]) dist[v] = 0, frontier.push_back(v);
-  for (int d = 1; d <= radius; ++d, frontier.swap(next)) {
-    next.clear();
-    for (uint32_t v : frontier)
-      for (uint32_t w : adj[v])
-        if (dist[w] > d) dist[w] = d, next.push_back(w);
-  }
-  return dist;
-}
-
-// The domain is what an owned candidate reads (3 rings, see kOwnedSummaryRadius), not
-// more: on a fresh patch (every vertex dirty) the round refreshes exactly the vertices
-// within 3 rings of the owned vertices and owned faces' corners, but the frozen ones
-// (untrusted: within kInitialQuadricRadius rings of an incomplete vertex; not owned).
-TEST(DecimateOwnedSummary, RefreshesThreeRingsAroundTheOwnedPart) {
-  const PatchInput in = capped_sphere_patch();
-  std::vector<uint8_t> owned_part(in.positions.size(), 0), incomplete(in.positions.size(), 0);
-  for (size_t v = 0; v < in.positions.size(); ++v) {
-    owned_part[v] = in.owned_vertex[v];
-    incomplete[v] = in.incomplete[v];
-  }
-  for (size_t f = 0; f < in.faces.size(); ++f)
-    if (in.owned_face[f])
-      for (uint32_t v : in.faces[f]) owned_part[v] = 1;
-  const std::vector<int> near = rings_from(in, owned_part, 3);
-  const std::vector<int> untrusted = rings_from(in, incomplete, kInitialQuadricRadius);
-  uint64_t expected = 0;
-  for (size_t v = 0; v < in.positions.size(); ++v)
-    expected += near[v] <= 3 && !(untrusted[v] <= kInitialQuadricRadius && !in.owned_vertex[v]);
-  PatchDecimator d(capped_sphere_patch(), DecimateParams{});
-  d.prepare_owned_summary_round();
-  EXPECT_GT(expected, 100u);
-  EXPECT_EQ(d.refreshes(), expected);
-}
-
 }  // namespace
 }  // namespace qemflow::nodes
