@@ -321,7 +321,8 @@ uint64_t record_id(const std::byte* record, uint32_t record_size) {
 struct OutputPieces {
   bool ply = true;
   uint64_t piece_faces = 1;
-  std::shared_ptr<FramePool> spare;  // written pieces kept for reuse (their leases released when taken)
+  std::shared_ptr<FramePool> spare;  // written pieces kept for reuse
+  Lease reused;  // the leases of the kept pieces taken: their pages are resident already
   std::vector<Bytes> pieces;
   std::vector<uint64_t> faces, max_index;
   uint64_t bytes_per_face() const { return ply ? io::ply_triangle_bytes : sizeof(Triangle); }
@@ -330,11 +331,12 @@ struct OutputPieces {
   void add(const Record* begin, const Record* end) {
     while (begin != end) {
       if (pieces.empty() || faces.back() == piece_faces) {
-        // A kept piece is covered by the group's lease, as a new one would be.
+        // A kept piece keeps its own lease: the group's covers only what the group
+        // writes, which for a small block is less than a piece.
         std::optional<FramePool::Kept> kept = spare ? spare->take(piece_faces * bytes_per_face()) : std::nullopt;
         if (kept) {
           pieces.push_back(std::move(kept->buffer));
-          kept->lease.release();
+          reused.merge(std::move(kept->lease));
           pieces.back().resize(piece_faces * bytes_per_face());
         } else {
           pieces.emplace_back(piece_faces * bytes_per_face());
@@ -411,21 +413,21 @@ Ordering merge_in_face_id_order(Job& job, const std::vector<std::span<std::byte>
   size_t breaks = 0;
   for (size_t r = 1; r < runs.size(); ++r) breaks += runs[r].at->id < (runs[r - 1].end - 1)->id;
   auto by_id = [](const Record& a, const Record& b) { return a.id < b.id; };
-  if ((breaks > max_breaks || runs.size() > max_runs) && frames.size() == 1) {  // sorted where it is
+  if (breaks > max_breaks || runs.size() > max_runs) {  // gathered to the front and sorted there
+    // No copy: a copy of the records is memory no lease counts. The frames lie in one
+    // buffer in address order, so each moves down next to the one before it (the
+    // space between them is frame headers and checksums, or nothing).
     Record* all = reinterpret_cast<Record*>(frames[0].data());
-    job.arena().execute([&] { tbb::parallel_sort(all, all + n, by_id); });
-    out.add(all, all + n);
-    return Ordering::sorted;
-  }
-  if (breaks > max_breaks || runs.size() > max_runs) {  // gathered and sorted
-    UninitializedVector<Record> all(n);
     uint64_t at = 0;
     for (const std::span<std::byte> frame : frames) {
-      std::memcpy(static_cast<void*>(all.data() + at), frame.data(), frame.size());
+      if (reinterpret_cast<std::byte*>(all + at) > frame.data()) {
+        throw Error(ErrorKind::internal, "frames to sort in place are not in address order");
+      }
+      std::memmove(static_cast<void*>(all + at), frame.data(), frame.size());
       at += frame.size() / sizeof(Record);
     }
-    job.arena().execute([&] { tbb::parallel_sort(all.begin(), all.end(), by_id); });
-    out.add(all.data(), all.data() + n);
+    job.arena().execute([&] { tbb::parallel_sort(all, all + n, by_id); });
+    out.add(all, all + n);
     return Ordering::sorted;
   }
   while (!runs.empty()) {
@@ -481,6 +483,7 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
   };
   // Output pieces to the I/O thread, in order, each with its part of `lease`.
   auto submit = [&](OutputPieces& out, Ordering ordering, Lease& lease) {
+    lease.merge(std::move(out.reused));
     for (size_t p = 0; p < out.pieces.size(); ++p) {
       Lease piece_lease = lease.split(std::min<uint64_t>(lease.bytes(), out.pieces[p].capacity()));
       if (ply) {
@@ -572,14 +575,35 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
     pass.transform = [&](BlockItem& item, Lease&) {
       item.out.spare = spare_pieces;
       std::vector<std::span<std::byte>> records;
-      std::vector<Bytes> decoded(item.at.size());  // zstd frames' records
+      // Raw frames are merged (or sorted) where they lie in `frames`. Compressed ones
+      // (the frames of a zstd scratch, or of another job's codec in this process) are
+      // decoded one after another into one buffer, the decoded copy the lease counts,
+      // with any raw ones among them copied beside: a sort then works in place either way.
+      Bytes decoded;
       uint64_t faces = 0;
-      for (size_t f = 0; f < item.at.size(); ++f) {
+      auto decode_all = [&] {
+        records.clear();
+        faces = 0;
+        decoded.resize(mesh.block_faces[item.cell] * record);
+        for (const auto& [offset, bytes] : item.at) {
+          std::byte* at = decoded.data() + faces * record;
+          const FrameHeader header = decode_frame_into(item.frames.data() + offset, bytes, record, at,
+                                                       mesh.block_faces[item.cell] - faces, "block frame");
+          records.emplace_back(at, header.count * record);
+          faces += header.count;
+        }
+      };
+      if (!raw_frames) decode_all();
+      for (size_t f = 0; raw_frames && f < item.at.size(); ++f) {
         std::byte* frame = item.frames.data() + item.at[f].first;
-        const FrameHeader header = decode_frame_in_place(frame, item.at[f].second, record, decoded[f], "block frame");
+        Bytes unexpected;  // a compressed frame's records, dropped: decode_all decodes it again
+        const FrameHeader header = decode_frame_in_place(frame, item.at[f].second, record, unexpected, "block frame");
+        if (!header.raw) {
+          decode_all();
+          break;
+        }
+        records.emplace_back(frame + frame_header_bytes, header.count * record);
         faces += header.count;
-        records.push_back(header.raw ? std::span<std::byte>(frame + frame_header_bytes, header.count * record)
-                                     : std::span<std::byte>(decoded[f]));
       }
       if (faces != mesh.block_faces[item.cell]) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
       item.ordering = merge(records, item.out);
