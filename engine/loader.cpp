@@ -449,9 +449,10 @@ class Loader {
     return reserve_.split(bytes, job_.owner(owner));
   }
   void give_back(Lease&& lease) { reserve_.merge(std::move(lease)); }
+  static uint32_t weld_buckets_for(uint32_t chunks) { return std::clamp<uint32_t>(chunks * 2, 1, 4096); }
 
-  Lease spill_lease(const char* owner, double fraction, uint32_t record_size) {
-    uint64_t min = BucketSpill::min_lease_bytes(record_size);
+  Lease spill_lease(const char* owner, double fraction, uint32_t record_size, uint32_t buckets = 1) {
+    uint64_t min = BucketSpill::min_lease_bytes(record_size, buckets);
     // Past a few hundred MiB, bigger spill buffers only make bigger frames.
     uint64_t bytes = std::clamp<uint64_t>(uint64_t(double(capacity_) * fraction), min, 192ull << 20);
     return take(owner, std::min(bytes, std::max(min, reserve_.bytes())));
@@ -882,29 +883,45 @@ class Loader {
   void load_out_of_core() {
     mesh_.out_of_core = true;
     progress_span_ = 0.4;
-    const uint64_t chunk = options_.window_vertices
-                               ? options_.window_vertices
-                               : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.15) / sizeof(Point));
-    mesh_.vertices.window = chunk;
     const auto& info = input_.info();
-    uint32_t expected_chunks =
-        info.vertex_count ? uint32_t(std::max<uint64_t>((*info.vertex_count + chunk - 1) / chunk, 1)) : 16;
+    uint64_t chunk = options_.window_vertices
+                         ? options_.window_vertices
+                         : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.15) / sizeof(Point));
+    auto chunks_of = [&](uint64_t chunk) {
+      return info.vertex_count ? uint32_t(std::max<uint64_t>((*info.vertex_count + chunk - 1) / chunk, 1)) : 16;
+    };
+    // Pass 1's spills hold two pages per chunk bucket (BucketSpill::min_lease_bytes):
+    // under a small reserve, fewer and larger chunks, while pass 2's pair of them
+    // leaves room for its two spills' smallest leases.
+    auto pass1_min = [&](uint32_t chunks) {
+      return BucketSpill::min_lease_bytes(local_record_size(), chunks) +
+             BucketSpill::min_lease_bytes(sizeof(CornerRef), chunks) +
+             (options_.weld ? BucketSpill::min_lease_bytes(sizeof(WeldRecord), weld_buckets_for(chunks)) : 0);
+    };
+    while (!options_.window_vertices && pass1_min(chunks_of(chunk)) > uint64_t(double(capacity_) * 0.4) &&
+           2 * (chunk + chunk / 4) * sizeof(Point) + 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace)) <=
+               capacity_) {
+      chunk += chunk / 4;
+    }
+    mesh_.vertices.window = chunk;
+    const uint32_t expected_chunks = chunks_of(chunk);
 
     // Pass 1: vertices to chunks in scratch; local faces bucketed by their first
     // chunk, the corners of the others by their vertex's chunk.
     const uint32_t local_size = local_record_size();
     BucketSpill local(job_, scratch_, "local-faces", local_size,
-                      spill_lease("face bucketer", 0.2, sizeof(LocalFace)), expected_chunks, "load");
+                      spill_lease("face bucketer", 0.2, local_size, expected_chunks), expected_chunks, "load");
     BucketSpill corners(job_, scratch_, "corners", sizeof(CornerRef),
-                        spill_lease("corner bucketer", 0.1, sizeof(CornerRef)), expected_chunks, "load");
+                        spill_lease("corner bucketer", 0.1, sizeof(CornerRef), expected_chunks), expected_chunks,
+                        "load");
     // Out of core, the weld sorts (position, index) records by position-hash bucket,
     // one bucket at a time; and the degree count reads every face once before the
     // dereference, so spanning faces are also kept whole.
-    const uint32_t weld_buckets = std::clamp<uint32_t>(expected_chunks * 2, 1, 4096);
+    const uint32_t weld_buckets = weld_buckets_for(expected_chunks);
     std::optional<BucketSpill> weld_spill, spanning;
     if (options_.weld) {
       weld_spill.emplace(job_, scratch_, "weld", sizeof(WeldRecord),
-                         spill_lease("weld bucketer", 0.1, sizeof(WeldRecord)), weld_buckets, "load");
+                         spill_lease("weld bucketer", 0.1, sizeof(WeldRecord), weld_buckets), weld_buckets, "load");
     }
     if (options_.degrees) {
       spanning.emplace(job_, scratch_, "spanning-faces", sizeof(LocalFace),

@@ -13,7 +13,9 @@
 //   other two thirds; if they would not, add() waits for the I/O thread (which never
 //   waits for compute, so this cannot deadlock).
 // - A smaller lease means smaller pages and earlier, more frequent flushes; nothing
-//   else changes (the minimum lease is min_lease_bytes()).
+//   else changes (the minimum lease is min_lease_bytes(), which grows with the
+//   buckets: each needs room for two pages, or records landing in buckets without a
+//   page force flushes of a few records each, a frame and a FrameRef apiece).
 // - A frame holds at most 2 MiB of records (a bucket flushes as several frames), so
 //   frame buffers, written and read, come from the heap rather than fresh mappings.
 // - finish() flushes everything, waits for the writes and finalizes the files, and
@@ -40,7 +42,7 @@ class BucketSpill {
   BucketSpill(Job& job, ScratchStore& scratch, std::string name, uint32_t record_size,
               Lease lease, uint32_t expected_buckets, const char* stage);
   ~BucketSpill();
-  static uint64_t min_lease_bytes(uint32_t record_size);
+  static uint64_t min_lease_bytes(uint32_t record_size, uint32_t buckets = 1);
 
   // Inline, with the copy's size known for the common record sizes: a libc memcpy
   // call a record (12 bytes) was most of a re-encode's cost of filing records.

@@ -62,6 +62,24 @@ TEST(BucketSpill, ASmallerLeaseGivesTheSameRecordsInMoreFrames) {
   EXPECT_GT(small_frames, 4 * big_frames);  // spilled early and often
 }
 
+// Records spread over more buckets than the pages a small lease holds: each record
+// for a bucket without a page flushed others of a few records each (a shuffled 3M
+// faces at 48M wrote 3.1M corner frames, 2.9 records apiece, and their FrameRefs took
+// the process to 211 MiB against its budget). The minimum for the buckets holds two
+// pages per bucket, so a flush writes pages, not scraps.
+TEST(BucketSpill, TheMinimumLeaseForManyBucketsWritesFramesOfWholePages) {
+  constexpr uint32_t buckets = 300;
+  constexpr uint64_t count = 300'000;
+  auto [enough, enough_frames] = round_trip(BucketSpill::min_lease_bytes(sizeof(Record), buckets), buckets, count,
+                                            ScratchCodec::raw);
+  auto [scraps, scrap_frames] = round_trip(BucketSpill::min_lease_bytes(sizeof(Record)), buckets, count,
+                                           ScratchCodec::raw);
+  EXPECT_EQ(enough, scraps);
+  const uint64_t page_records = 2048 / sizeof(Record);
+  EXPECT_LE(enough_frames, 2 * count / page_records) << "frames of " << count / enough_frames << " records";
+  EXPECT_GT(scrap_frames, 8 * enough_frames) << "the one-bucket minimum no longer shows the scraps";
+}
+
 TEST(BucketSpill, RawFramesGiveTheSameRecords) {
   auto [zstd, zstd_frames] = round_trip(BucketSpill::min_lease_bytes(sizeof(Record)), 37, 200'000);
   auto [raw, raw_frames] = round_trip(BucketSpill::min_lease_bytes(sizeof(Record)), 37, 200'000, ScratchCodec::raw);
