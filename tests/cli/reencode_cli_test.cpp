@@ -61,6 +61,30 @@ TEST(ReencodeCli, FacesInRandomOrderStayUnderATightBudget) {
       << "baseline " << r["baseline_bytes"] << ", governor peak " << r["governor_peak_bytes"];
 }
 
+// Every vertex and face in random order (gen --shuffle), 3M faces at 48M: the loader's
+// ~3 MB reserve gave 79 vertex chunks a corner spill of 64 pages, so most corners
+// landed in a chunk without a page and flushed others of ~3 records each: 3.1M frames,
+// whose FrameRefs took the process to 211-237 MiB in 120-148 s (7eb8121). Pass-1 spills
+// now hold two pages per chunk, with fewer, larger chunks: 24 MiB in about 4 s.
+TEST(ReencodeCli, AWhollyShuffledMeshStaysUnderATightBudget) {
+  TempDir dir;
+  const auto in = dir / "shuffled.ply";
+  std::string out;
+  ASSERT_EQ(run_command(cli_path().string() + " gen " + in.string() + " --faces 3M --shuffle 9 --quiet", &out), 0)
+      << out;
+  const auto report = dir / "r.json";
+  ASSERT_EQ(run_command(cli_path().string() + " simplify " + in.string() + " " + (dir / "out.ply").string() +
+                            " --ratio 1 --mem-budget 48M --quiet --report " + report.string() + " --scratch " +
+                            dir.path().string(),
+                        &out),
+            0)
+      << out;
+  const auto r = nlohmann::json::parse(file_bytes(report));
+  ASSERT_TRUE(r["out_of_core_dereference"].get<bool>());
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>())
+      << "baseline " << r["baseline_bytes"] << ", governor peak " << r["governor_peak_bytes"];
+}
+
 // Found by review6 (present at 58b3b41): `qemflow simplify m.ply out.obj --ratio 1` (the
 // re-encode) wrote each float coordinate as its shortest double text
 // ("-0.7237222790718079"), `--ratio 1 --in-core` (then the simplifier, which also welds
