@@ -327,28 +327,26 @@ class VertexFrameWriter {
 };
 
 // Triangle-only block records kept in memory: pages of records per cell, so nothing
-// is ever reallocated and the memory held is within what bytes_for() leased. A cell's
-// pages double from first_page_bytes() up to page_bytes: a cell's unused room is its
+// is ever reallocated and the memory held is within what bytes() asks for. A cell's
+// pages double from its first page up to page_bytes: a cell's unused room is its
 // last page's, at most min(page_bytes, its records' bytes + the first page), where
 // fixed 256 KiB pages leased 256 KiB a cell however few faces it got (a small mesh
 // with many cells leased several times its records).
 class ResidentBlocks {
  public:
   static constexpr uint64_t page_bytes = 256 << 10;
-  // A cell's first page: about its share of the records, between 4 KiB and page_bytes,
-  // so that big cells start with the 256 KiB pages they would grow to anyway.
-  static uint64_t first_page_bytes(uint64_t faces, uint32_t record_size, uint32_t cells) {
-    const uint64_t share = faces * record_size / std::max<uint32_t>(cells, 1);
-    return std::clamp<uint64_t>(std::bit_ceil(std::max<uint64_t>(share, 1)), 4 << 10, page_bytes);
-  }
-  static uint64_t bytes_for(uint64_t faces, uint32_t record_size, uint32_t cells) {
+  // Room for `faces` records over `cells` cells; hold() a lease of bytes() before add().
+  // A cell's first page is about its share of the records, between 4 KiB and
+  // page_bytes, so that big cells start with the 256 KiB pages they would grow to anyway.
+  ResidentBlocks(uint64_t faces, uint32_t record_size, uint32_t cells)
+      : record_size_(record_size), faces_left_(faces), pages_(cells) {
     const uint64_t records = faces * record_size;
-    const uint64_t first = first_page_bytes(faces, record_size, cells);
-    return records + std::min(uint64_t(cells) * page_bytes, records + uint64_t(cells) * first);
+    first_page_bytes_ = std::clamp<uint64_t>(std::bit_ceil(std::max<uint64_t>(records / std::max<uint32_t>(cells, 1), 1)),
+                                             4 << 10, page_bytes);
+    bytes_ = records + std::min(uint64_t(cells) * page_bytes, records + uint64_t(cells) * first_page_bytes_);
   }
-  ResidentBlocks(uint64_t faces, uint32_t record_size, uint32_t cells, Lease lease)
-      : record_size_(record_size), first_page_bytes_(first_page_bytes(faces, record_size, cells)),
-        faces_left_(faces), pages_(cells), lease_(std::move(lease)) {}
+  uint64_t bytes() const { return bytes_; }
+  void hold(Lease lease) { lease_ = std::move(lease); }
   bool fits(uint64_t faces) const { return faces <= faces_left_; }
   void add(uint32_t cell, const std::byte* record) { add_run(cell, record, 1); }
   void add_run(uint32_t cell, const std::byte* records, uint64_t count) {
@@ -380,7 +378,8 @@ class ResidentBlocks {
 
  private:
   uint32_t record_size_;
-  uint64_t first_page_bytes_;
+  uint64_t first_page_bytes_ = 0;
+  uint64_t bytes_ = 0;
   uint64_t faces_left_;
   std::vector<std::vector<Bytes>> pages_;
   Lease lease_;
@@ -689,6 +688,113 @@ class Loader {
         run_stream_pass(job_, pass);
   }
 
+  // Where the resident load's block records go: in memory when triangle-only records
+  // of `triangles` faces fit what the loader holds (`block_lease` then goes back), else
+  // a BucketSpill under `block_lease` (taken again if it went back). The grid is built
+  // from `polygons`, the same on both reads and out of core.
+  void place_blocks(uint64_t polygons, uint64_t triangles, uint32_t record_size, Lease& block_lease,
+                    std::optional<ResidentBlocks>& in_memory, std::unique_ptr<BucketSpill>& blocks) {
+    build_grid(polygons);
+    if (options_.triangles_only && triangles > 0) {
+      ResidentBlocks planned(triangles, record_size, mesh_.grid.count());
+      if (planned.bytes() <= reserve_.bytes() + block_lease.bytes()) {
+        give_back(std::move(block_lease));
+        planned.hold(take("resident blocks", planned.bytes()));
+        in_memory.emplace(std::move(planned));
+        return;
+      }
+    }
+    if (block_lease.bytes() == 0) block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
+    blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", record_size, std::move(block_lease),
+                                           mesh_.grid.count(), "load");
+  }
+
+  // The resident load's face pass: faces resolved against the resident positions
+  // (as xyz floats when `floats`) and filed into `in_memory` when given, else into
+  // `blocks`. Returns whether `in_memory` overflowed (an input with polygons: its
+  // triangles were then counted, not stored); on the `retry`, sized by that count, an
+  // overflow is bad input.
+  bool resident_face_pass(bool floats, ResidentBlocks* in_memory, BucketSpill* blocks, bool retry) {
+    const uint64_t vertex_count = mesh_.vertex_count;
+    const auto& positions = mesh_.vertices.resident;
+    const auto& xyz = mesh_.vertices.resident_xyz;
+    // Pass B: faces resolved and made into block records on every compute thread;
+    // the sink only files them.
+    auto face_pass = input_pass(&InputStream::read_faces);
+    face_pass.transform = [&](InputItem& item, Lease&) {
+      const auto& batch = item.batch;
+      item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
+      item.cells.resize(batch.triangles.size());
+      if (verbatim_triangles()) {
+        const size_t faces = batch.triangles.size();
+        for (size_t i = 0; i < faces; ++i) {
+          // The positions a face reads are scattered over the whole vertex array:
+          // ask for a later face's while this one's are resolved, so the cache
+          // misses overlap instead of stalling one after another.
+          if (i + prefetch_faces_ahead < faces) {
+            for (uint64_t v : batch.triangles[i + prefetch_faces_ahead]) {
+              if (v < vertex_count) prefetch_position(floats, xyz.data(), positions.data(), v);
+            }
+          }
+          const Triangle& t = batch.triangles[i];
+          for (uint64_t v : t) {
+            if (v >= vertex_count) index_out_of_range(input_.path, batch.first_triangle + i, v, vertex_count);
+          }
+          if (floats) {
+            auto at = [&](uint64_t v) { return Point{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
+            item.cells[i] = triangle_record(t, at(t[0]), at(t[1]), at(t[2]),
+                                            item.block_records.data() + i * mesh_.block_record_size);
+          } else {
+            item.cells[i] = triangle_record(t, positions[t[0]], positions[t[1]], positions[t[2]],
+                                            item.block_records.data() + i * mesh_.block_record_size);
+          }
+        }
+        return;
+      }
+      BlockFace face;
+      size_t kept = 0;
+      for (size_t i = 0; i < batch.triangles.size(); ++i) {
+        face.id = batch.first_triangle + i;
+        for (int k = 0; k < 3; ++k) {
+          uint64_t v = batch.triangles[i][k];
+          if (v >= vertex_count) index_out_of_range(input_.path, face.id, v, vertex_count);
+          face.positions[k] = positions[v];
+        }
+        if (!prepare(face, batch.triangles[i])) {
+          ++item.dropped;
+          continue;
+        }
+        item.cells[kept] = make_record(face, item.block_records.data() + kept * mesh_.block_record_size);
+        ++kept;
+      }
+      item.cells.resize(kept);
+    };
+    bool overflowed = false;
+    face_pass.sink = [&](InputItem& item, Lease&) {
+      if (in_memory) {
+        if (overflowed || !in_memory->fits(item.cells.size())) {
+          // The reader holds the file to its header's polygon count; past the first
+          // read, the count is the triangles' own.
+          if (retry) {
+            throw_bad_input(input_.path.string(), "triangle " + std::to_string(item.batch.first_triangle),
+                            "more faces than the first read of the file found (did it change?)");
+          }
+          overflowed = true;  // counted on, not stored
+        } else {
+          add_records(*in_memory, item.block_records, item.cells);
+        }
+      } else {
+        add_records(*blocks, item.block_records, item.cells);
+      }
+      mesh_.dropped_faces += item.dropped;
+      if (!item.batch.triangles.empty()) {
+        mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
+      }
+    };
+    run_stream_pass(job_, face_pass);
+    return overflowed;
+  }
+
   // All vertex positions in memory; faces resolved as they stream by.
   void load_resident(uint64_t vertex_count, uint64_t polygon_count) {
     progress_span_ = options_.degrees ? 0.4 : 0.8;
@@ -751,110 +857,22 @@ class Loader {
     // A PLY's face count counts polygons: an input with quads or larger polygons has
     // more triangles than that, and resident blocks sized by it overflow. Its faces are
     // then read once more, into blocks sized by the triangles the first read counted.
-    uint64_t expected_triangles = polygon_count;
     std::optional<ResidentBlocks> in_memory;
-    for (int attempt = 0;; ++attempt) {
-      build_grid(polygon_count);  // the same grid on both reads and out of core
-      // Triangle-only records that fit what the loader holds stay in memory: no scratch.
-      if (options_.triangles_only && expected_triangles > 0) {
-        uint64_t need = ResidentBlocks::bytes_for(expected_triangles, record_size, mesh_.grid.count());
-        if (need <= reserve_.bytes() + block_lease.bytes()) {
-          give_back(std::move(block_lease));
-          in_memory.emplace(expected_triangles, record_size, mesh_.grid.count(), take("resident blocks", need));
-        }
-      }
-      if (!in_memory) {
-        if (block_lease.bytes() == 0) block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
-        blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", record_size, std::move(block_lease),
-                                               mesh_.grid.count(), "load");
-      }
-
-      // Pass B: faces resolved and made into block records on every compute thread;
-      // the sink only files them.
-      auto face_pass = input_pass(&InputStream::read_faces);
-      face_pass.transform = [&](InputItem& item, Lease&) {
-        const auto& batch = item.batch;
-        item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
-        item.cells.resize(batch.triangles.size());
-        if (verbatim_triangles()) {
-          const size_t faces = batch.triangles.size();
-          for (size_t i = 0; i < faces; ++i) {
-            // The positions a face reads are scattered over the whole vertex array:
-            // ask for a later face's while this one's are resolved, so the cache
-            // misses overlap instead of stalling one after another.
-            if (i + prefetch_faces_ahead < faces) {
-              for (uint64_t v : batch.triangles[i + prefetch_faces_ahead]) {
-                if (v < vertex_count) prefetch_position(floats, xyz.data(), positions.data(), v);
-              }
-            }
-            const Triangle& t = batch.triangles[i];
-            for (uint64_t v : t) {
-              if (v >= vertex_count) index_out_of_range(input_.path, batch.first_triangle + i, v, vertex_count);
-            }
-            if (floats) {
-              auto at = [&](uint64_t v) { return Point{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
-              item.cells[i] = triangle_record(t, at(t[0]), at(t[1]), at(t[2]),
-                                              item.block_records.data() + i * mesh_.block_record_size);
-            } else {
-              item.cells[i] = triangle_record(t, positions[t[0]], positions[t[1]], positions[t[2]],
-                                              item.block_records.data() + i * mesh_.block_record_size);
-            }
-          }
-          return;
-        }
-        BlockFace face;
-        size_t kept = 0;
-        for (size_t i = 0; i < batch.triangles.size(); ++i) {
-          face.id = batch.first_triangle + i;
-          for (int k = 0; k < 3; ++k) {
-            uint64_t v = batch.triangles[i][k];
-            if (v >= vertex_count) index_out_of_range(input_.path, face.id, v, vertex_count);
-            face.positions[k] = positions[v];
-          }
-          if (!prepare(face, batch.triangles[i])) {
-            ++item.dropped;
-            continue;
-          }
-          item.cells[kept] = make_record(face, item.block_records.data() + kept * mesh_.block_record_size);
-          ++kept;
-        }
-        item.cells.resize(kept);
-      };
-      bool overflowed = false;
-      face_pass.sink = [&](InputItem& item, Lease&) {
-        if (in_memory) {
-          if (overflowed || !in_memory->fits(item.cells.size())) {
-            // The reader holds the file to its header's polygon count; past the first
-            // read, the count is the triangles' own.
-            if (attempt > 0) {
-              throw_bad_input(input_.path.string(), "triangle " + std::to_string(item.batch.first_triangle),
-                              "more faces than the first read of the file found (did it change?)");
-            }
-            overflowed = true;  // counted on, not stored
-          } else {
-            add_records(*in_memory, item.block_records, item.cells);
-          }
-        } else {
-          add_records(*blocks, item.block_records, item.cells);
-        }
-        mesh_.dropped_faces += item.dropped;
-        if (!item.batch.triangles.empty()) {
-          mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
-        }
-      };
-      run_stream_pass(job_, face_pass);
-      if (!overflowed) break;
-      expected_triangles = mesh_.face_count;
+    place_blocks(polygon_count, polygon_count, record_size, block_lease, in_memory, blocks);
+    if (resident_face_pass(floats, in_memory ? &*in_memory : nullptr, blocks.get(), false)) {
       Lease resident_lease;
       in_memory->finish(resident_lease);
       in_memory.reset();
       give_back(std::move(resident_lease));
+      const uint64_t triangles = mesh_.face_count;
       mesh_.face_count = 0;
       mesh_.dropped_faces = 0;
       // The bar goes back to the middle of the load for the second read.
       progress_base_ = 0;
       progress_span_ = 0.4;
       reopen_input_past_vertices();
+      place_blocks(polygon_count, triangles, record_size, block_lease, in_memory, blocks);
+      resident_face_pass(floats, in_memory ? &*in_memory : nullptr, blocks.get(), true);
     }
     if (in_memory) {
       mesh_.resident_blocks = in_memory->finish(mesh_.resident_blocks_lease);
