@@ -99,8 +99,9 @@ struct BlockGrid {
   Point min{0, 0, 0}, max{0, 0, 0};
   std::array<uint32_t, 3> dims{1, 1, 1};
   uint32_t count() const { return dims[0] * dims[1] * dims[2]; }
-  // Inline: the loaders call it once a face.
-  uint32_t cell_of(const Point& p) const {
+  // Inline, always: the loaders call it once a face (GCC left it a call in the
+  // resident re-encode's cell loop, a fifth of that run's samples).
+  [[gnu::always_inline]] uint32_t cell_of(const Point& p) const {
     uint32_t idx[3];
     for (int i = 0; i < 3; ++i) {
       const double extent = max[i] - min[i];

@@ -206,6 +206,47 @@ struct InputItem {
   uint64_t dropped = 0;                                   // faces with a repeated welded vertex
   uint64_t max_index = 0;                                 // out of core: the largest vertex index
   bool classified = false;  // out of core: block_records hold u32 ids, cells the local bucket (or UINT32_MAX)
+  // Resident re-encode: the faces were decoded straight into block_records as u32
+  // triples (triangle32 records), and batch.triangles stays empty.
+  bool records_decoded = false;
+  uint64_t triangle_count() const {
+    return records_decoded ? block_records.size() / triangle32_record_size : batch.triangles.size();
+  }
+};
+
+// The buffers items leave behind (block records and cells), for later items to decode
+// into: a fresh buffer is fresh pages, faulted in one by one (a third of a resident
+// re-encode's page faults were those). Kept under `lease`, taken for the pass from the
+// loader's reservation; a buffer it cannot cover is freed.
+struct SpareItemBuffers {
+  std::mutex mutex;
+  Lease lease;
+  uint64_t kept_bytes = 0;
+  std::vector<std::pair<Bytes, std::vector<uint32_t>>> kept;
+  static uint64_t bytes_of(const Bytes& records, const std::vector<uint32_t>& cells) {
+    return records.capacity() + cells.capacity() * sizeof(uint32_t);
+  }
+  void lend(InputItem& item) {
+    std::lock_guard lock(mutex);
+    if (kept.empty()) return;
+    kept_bytes -= bytes_of(kept.back().first, kept.back().second);
+    item.block_records = std::move(kept.back().first);
+    item.cells = std::move(kept.back().second);
+    kept.pop_back();
+  }
+  void keep(InputItem& item) {
+    const uint64_t bytes = bytes_of(item.block_records, item.cells);
+    std::lock_guard lock(mutex);
+    if (kept_bytes + bytes > lease.bytes()) return;
+    kept_bytes += bytes;
+    kept.emplace_back(std::move(item.block_records), std::move(item.cells));
+  }
+  // Every kept buffer freed; the lease is left to its owner.
+  void clear() {
+    std::lock_guard lock(mutex);
+    kept.clear();
+    kept_bytes = 0;
+  }
 };
 
 // The input, read from the I/O thread. A binary PLY goes through the bulk reader:
@@ -236,10 +277,20 @@ struct InputStream {
     return reader->next(item.batch, elements) &&
            (!item.batch.vertices.empty() || !item.batch.triangles.empty());
   }
+  // Faces ranges decoded as triangle32 block records (InputItem::records_decoded),
+  // into the buffers of earlier items when `spare` has some.
+  bool triangles32 = false;
+  SpareItemBuffers* spare = nullptr;
   // Compute side of the bulk reader: one item at a time, in read order.
   void decode(InputItem& item) {
     if (!bulk) return;
-    bulk->decode(item.raw, item.batch);
+    if (triangles32 && item.raw.part == io::RawChunk::Part::faces) {
+      if (spare) spare->lend(item);
+      bulk->decode_triangles32(item.raw, item.block_records, item.batch.first_triangle);
+      item.records_decoded = true;
+    } else {
+      bulk->decode(item.raw, item.batch);
+    }
     item.raw.clear();
   }
   // Vertices first, then faces, as two passes: the vertex pass ends at the first
@@ -719,9 +770,44 @@ class Loader {
     const auto& positions = mesh_.vertices.resident;
     const auto& xyz = mesh_.vertices.resident_xyz;
     // Pass B: faces resolved and made into block records on every compute thread;
-    // the sink only files them.
+    // the sink only files them. A binary PLY's faces, re-encoded as triangle32 records,
+    // are decoded straight into them (12 bytes a face instead of a 24-byte Triangle
+    // the transform then read back): only their cells are left to find.
+    input_.triangles32 = input_.bulk && verbatim_triangles() && mesh_.block_record_size == triangle32_record_size;
     auto face_pass = input_pass(&InputStream::read_faces);
+    SpareItemBuffers spare;
+    if (input_.triangles32) {
+      // Records and cells of up to 8 items of the largest size (16 bytes an element).
+      const uint64_t spare_bytes = 8 * (face_pass.max_item_bytes / bytes_per_input_element + 16) * 16;
+      if (spare_bytes <= reserve_.bytes() / 4) {
+        spare.lease = take("spare item buffers", spare_bytes);
+        input_.spare = &spare;
+      }
+    }
     face_pass.transform = [&](InputItem& item, Lease&) {
+      if (item.records_decoded) {  // indices checked by the decode
+        const size_t faces = item.triangle_count();
+        item.cells.resize(faces);
+        const std::byte* records = item.block_records.data();
+        auto id = [&](size_t i, int k) {
+          uint32_t v;
+          std::memcpy(&v, records + i * triangle32_record_size + k * sizeof v, sizeof v);
+          return uint64_t(v);
+        };
+        for (size_t i = 0; i < faces; ++i) {
+          if (i + prefetch_faces_ahead < faces) {  // as below
+            for (int k = 0; k < 3; ++k) prefetch_position(floats, xyz.data(), positions.data(), id(i + prefetch_faces_ahead, k));
+          }
+          const uint64_t a = id(i, 0), b = id(i, 1), c = id(i, 2);
+          if (floats) {
+            auto at = [&](uint64_t v) { return Point{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
+            item.cells[i] = mesh_.grid.cell_of(barycenter({at(a), at(b), at(c)}));
+          } else {
+            item.cells[i] = mesh_.grid.cell_of(barycenter({positions[a], positions[b], positions[c]}));
+          }
+        }
+        return;
+      }
       const auto& batch = item.batch;
       item.block_records.resize(batch.triangles.size() * mesh_.block_record_size);
       item.cells.resize(batch.triangles.size());
@@ -787,11 +873,16 @@ class Loader {
         add_records(*blocks, item.block_records, item.cells);
       }
       mesh_.dropped_faces += item.dropped;
-      if (!item.batch.triangles.empty()) {
-        mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.batch.triangles.size());
+      if (item.triangle_count() > 0) {
+        mesh_.face_count = std::max<uint64_t>(mesh_.face_count, item.batch.first_triangle + item.triangle_count());
       }
+      if (input_.spare) input_.spare->keep(item);
     };
     run_stream_pass(job_, face_pass);
+    input_.triangles32 = false;
+    input_.spare = nullptr;
+    spare.clear();
+    give_back(std::move(spare.lease));
     return overflowed;
   }
 

@@ -39,31 +39,14 @@
 #include <utility>
 #include <vector>
 
+#include "util/memory.hpp"
+
 namespace qemflow::engine {
 
-// Leaves new elements uninitialized: a buffer about to be filled by a read or a
-// decoder must not be zeroed first (that was a fifth of the pipeline's time).
-template <class T>
-struct UninitializedAllocator : std::allocator<T> {
-  template <class U>
-  struct rebind {
-    using other = UninitializedAllocator<U>;
-  };
-  UninitializedAllocator() = default;
-  template <class U>
-  UninitializedAllocator(const UninitializedAllocator<U>&) noexcept {}
-  template <class U>
-  void construct(U* p) noexcept {
-    ::new (static_cast<void*>(p)) U;
-  }
-  template <class U, class... Args>
-  void construct(U* p, Args&&... args) {
-    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-  }
-};
-using Bytes = std::vector<std::byte, UninitializedAllocator<std::byte>>;
-template <class T>
-using UninitializedVector = std::vector<T, UninitializedAllocator<T>>;
+// The buffers of util/memory.hpp, by their engine names.
+using qemflow::Bytes;
+using qemflow::UninitializedAllocator;
+using qemflow::UninitializedVector;
 
 // How frames are encoded. `zstd_level` is used by the zstd codec only.
 struct FrameCodec {

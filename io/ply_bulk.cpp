@@ -33,6 +33,28 @@ size_t read_at(int fd, const std::string& name, uint64_t offset, char* out, size
   return got;
 }
 
+// Where decode_faces puts triangles: as Triangles, or as u32 triples (12 bytes).
+struct WideTriangles {
+  std::vector<Triangle>& v;
+  size_t size() const { return v.size(); }
+  void resize(size_t n) { v.resize(n); }
+  void set(size_t i, uint64_t a, uint64_t b, uint64_t c) { v[i] = {a, b, c}; }
+};
+struct Triangles32 {
+  Bytes& v;
+  uint32_t* at = reinterpret_cast<uint32_t*>(v.data());  // stores through std::byte would alias every member read
+  size_t size() const { return v.size() / 12; }
+  void resize(size_t n) {
+    v.resize(n * 12);
+    at = reinterpret_cast<uint32_t*>(v.data());
+  }
+  void set(size_t i, uint64_t a, uint64_t b, uint64_t c) {
+    at[3 * i] = uint32_t(a);
+    at[3 * i + 1] = uint32_t(b);
+    at[3 * i + 2] = uint32_t(c);
+  }
+};
+
 }  // namespace
 
 PlyBulkReader::PlyBulkReader(const std::filesystem::path& path, PlyHeader header, uint64_t file_size)
@@ -113,9 +135,18 @@ void PlyBulkReader::decode(const RawChunk& chunk, MeshBatch& batch) {
     if (swap) decode_vertices<true>(chunk, batch);
     else decode_vertices<false>(chunk, batch);
   } else {
-    if (swap) decode_faces<true>(chunk, batch);
-    else decode_faces<false>(chunk, batch);
+    batch.first_vertex = vertex_count_;
+    if (swap) decode_faces<true>(chunk, batch.first_triangle, WideTriangles{batch.triangles});
+    else decode_faces<false>(chunk, batch.first_triangle, WideTriangles{batch.triangles});
   }
+}
+
+void PlyBulkReader::decode_triangles32(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle) {
+  if (chunk.part != RawChunk::Part::faces || vertex_count_ > UINT32_MAX) {
+    throw Error(ErrorKind::internal, "decode_triangles32: not a faces range of a mesh with u32 indices");
+  }
+  if (header_.format == MeshFormat::ply_binary_be) decode_faces<true>(chunk, first_triangle, Triangles32{triangles});
+  else decode_faces<false>(chunk, first_triangle, Triangles32{triangles});
 }
 
 template <bool Swap>
@@ -147,9 +178,9 @@ void PlyBulkReader::decode_vertices(const RawChunk& chunk, MeshBatch& batch) {
 // length once all of it is there, its triangles appended at out[used...]; else 0 and
 // `needed`, the bytes known to be required. The same checks, in the same order and
 // words, as the streaming reader's binary_faces.
-template <bool Swap>
-size_t PlyBulkReader::face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
-                                  std::vector<Triangle>& out, size_t& used) {
+template <bool Swap, class Out>
+size_t PlyBulkReader::face_record(const char* record, size_t left, uint64_t offset, size_t& needed, Out& out,
+                                  size_t& used) {
   const PlyElement& element = header_.elements[*header_.face_element];
   const PlyProperty& list = element.properties[header_.index_property];
   const size_t count_size = size_of(list.count_type);
@@ -201,22 +232,21 @@ size_t PlyBulkReader::face_record(const char* record, size_t left, uint64_t offs
     polygon_[size_t(i)] = uint64_t(index);
   }
   if (out.size() < used + polygon_.size()) out.resize(2 * out.size() + polygon_.size());
-  for (size_t i = 1; i + 1 < polygon_.size(); ++i) out[used++] = {polygon_[0], polygon_[i], polygon_[i + 1]};
+  for (size_t i = 1; i + 1 < polygon_.size(); ++i) out.set(used++, polygon_[0], polygon_[i], polygon_[i + 1]);
   ++faces_done_;
   return length;
 }
 
-template <bool Swap>
-void PlyBulkReader::decode_faces(const RawChunk& chunk, MeshBatch& batch) {
-  batch.first_vertex = vertex_count_;
-  batch.first_triangle = triangles_done_;
+template <bool Swap, class Out>
+void PlyBulkReader::decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out) {
+  first_triangle = triangles_done_;
+  out.resize(0);
   if (!header_.face_element) return;
   const PlyElement& element = header_.elements[*header_.face_element];
   const PlyProperty& list = element.properties[header_.index_property];
   const bool fast = element.properties.size() == 1 && list.count_type == PlyType::uint8 &&
                     (list.type == PlyType::int32 || list.type == PlyType::uint32);
   const bool signed_index = list.type == PlyType::int32;
-  std::vector<Triangle>& out = batch.triangles;
   out.resize(chunk.size / 13 + 8);
   size_t used = 0;
   const char* p = chunk.bytes.get();
@@ -242,7 +272,6 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, MeshBatch& batch) {
       // "list uchar int" triangles: a fixed stride while the count byte says 3.
       size_t limit = size_t(std::min<uint64_t>(face_count_ - faces_done_, (chunk.size - pos) / 13));
       if (out.size() < used + limit) out.resize(used + limit);
-      Triangle* t = out.data() + used;
       size_t i = 0;
       for (; i < limit; ++i) {
         const char* r = p + pos + i * 13;
@@ -256,7 +285,7 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, MeshBatch& batch) {
                           "face " + std::to_string(faces_done_ + i) + " has vertex index " + std::to_string(shown) +
                               " but the file has " + std::to_string(vertex_count_) + " vertices");
         }
-        t[i] = {a, b, c};
+        out.set(used + i, a, b, c);
       }
       used += i;
       faces_done_ += i;

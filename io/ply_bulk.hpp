@@ -30,6 +30,7 @@
 
 #include "io/mesh_stream.hpp"
 #include "io/ply_header.hpp"
+#include "util/memory.hpp"
 
 namespace qemflow::io {
 
@@ -70,12 +71,16 @@ class PlyBulkReader {
   // ---- one compute thread at a time, ranges in read order ----
   // Fills `batch` (cleared first) with the range's vertices or triangles.
   void decode(const RawChunk& chunk, MeshBatch& batch);
+  // A faces range (of a mesh whose vertex count fits u32): its triangles as u32 index
+  // triples, 12 bytes each, at `triangles` (resized to them), not as 24-byte Triangles;
+  // the id of the first in `first_triangle`. The same checks and errors as decode().
+  void decode_triangles32(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle);
 
  private:
   template <bool Swap> void decode_vertices(const RawChunk& chunk, MeshBatch& batch);
-  template <bool Swap> void decode_faces(const RawChunk& chunk, MeshBatch& batch);
-  template <bool Swap> size_t face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
-                                          std::vector<Triangle>& out, size_t& used_triangles);
+  template <bool Swap, class Out> void decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out);
+  template <bool Swap, class Out> size_t face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
+                                                     Out& out, size_t& used_triangles);
   [[noreturn]] void truncated(const std::string& element_name, uint64_t element_count, uint64_t record,
                               uint64_t offset, size_t needed, size_t found) const;
 

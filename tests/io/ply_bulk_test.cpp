@@ -4,6 +4,7 @@
 // encoders must make exactly the writer's bytes.
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -18,8 +19,9 @@ namespace {
 using qemflow::testing::TempDir;
 using testing::PlyBuilder;
 
-// The whole file through the bulk reader, ranges of about `max_bytes`.
-IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes) {
+// The whole file through the bulk reader, ranges of about `max_bytes`; with
+// `triangles32`, faces ranges through decode_triangles32 (widened back here).
+IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, bool triangles32 = false) {
   auto reader = open_ply_bulk_reader(path);
   EXPECT_TRUE(reader) << path;
   IndexedMesh mesh;
@@ -27,6 +29,19 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes) {
   RawChunk chunk;
   MeshBatch batch;
   while (reader->read(chunk, max_bytes)) {
+    if (triangles32 && chunk.part == RawChunk::Part::faces) {
+      Bytes records(5);  // whatever a reused buffer held is overwritten
+      uint64_t first = 0;
+      reader->decode_triangles32(chunk, records, first);
+      EXPECT_EQ(first, mesh.triangles.size());
+      EXPECT_EQ(records.size() % 12, 0u);
+      for (size_t at = 0; at + 12 <= records.size(); at += 12) {
+        uint32_t abc[3];
+        std::memcpy(abc, records.data() + at, sizeof abc);
+        mesh.triangles.push_back({abc[0], abc[1], abc[2]});
+      }
+      continue;
+    }
     reader->decode(chunk, batch);
     EXPECT_EQ(batch.first_vertex, mesh.vertices.size());
     EXPECT_EQ(batch.first_triangle, mesh.triangles.size());
@@ -37,9 +52,9 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes) {
   return mesh;
 }
 
-std::string bulk_bad_input_message(const std::filesystem::path& path, size_t max_bytes) {
+std::string bulk_bad_input_message(const std::filesystem::path& path, size_t max_bytes, bool triangles32 = false) {
   try {
-    bulk_read(path, max_bytes);
+    bulk_read(path, max_bytes, triangles32);
   } catch (const Error& error) {
     EXPECT_EQ(error.kind(), ErrorKind::bad_input) << error.what();
     return error.what();
@@ -129,6 +144,8 @@ TEST(PlyBulk, DecodesEveryLayoutLikeTheStreamingReaderWhereverRangesEnd) {
     for (size_t max_bytes : {1, 2, 5, 12, 13, 14, 27, 100, 1 << 20}) {
       SCOPED_TRACE(layout.format + " " + layout.count + " " + layout.index + " range " + std::to_string(max_bytes));
       expect_same_mesh(bulk_read(path, max_bytes), expected);
+      // The resident re-encode's decode straight into u32 triples (polygons fanned).
+      expect_same_mesh(bulk_read(path, max_bytes, true), expected);
     }
   }
 }
@@ -184,6 +201,7 @@ TEST(PlyBulk, TruncatedAnywhereFailsExactlyLikeTheStreamingReader) {
       ASSERT_NE(expected.find("file ends inside"), std::string::npos) << expected;
       for (size_t max_bytes : {3, 13, 1 << 20}) {
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "length " << length << " range " << max_bytes;
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes, true), expected) << "u32, length " << length << " range " << max_bytes;
       }
     }
   }
@@ -232,6 +250,7 @@ TEST(PlyBulk, BadRecordsFailExactlyLikeTheStreamingReader) {
     ASSERT_NE(expected.find(": byte "), std::string::npos) << expected;
     for (size_t max_bytes : {7, 13, 1 << 20}) {
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "range " << max_bytes;
+      EXPECT_EQ(bulk_bad_input_message(path, max_bytes, true), expected) << "u32, range " << max_bytes;
     }
   }
 }
