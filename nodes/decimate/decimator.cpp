@@ -18,6 +18,8 @@
 #include <type_traits>
 #include <utility>
 
+#include "util/radix_sort.hpp"
+
 namespace qemflow::nodes {
 namespace {
 
@@ -195,7 +197,8 @@ void renumber_for_locality(PatchInput& in) {
     const Vec3& p = in.positions[v];
     by_code[v] = {lane(p[0], 0) | lane(p[1], 1) << 1 | lane(p[2], 2) << 2, v};
   }
-  std::sort(by_code.begin(), by_code.end());
+  // Ties in code are in index order already: the stable radix sort gives std::sort's order.
+  radix_sort_by_key(by_code, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
   std::vector<uint32_t> old_of(nv), new_of(nv);
   for (uint32_t i = 0; i < nv; ++i) {
     old_of[i] = by_code[i].second;
@@ -224,7 +227,7 @@ void renumber_for_locality(PatchInput& in) {
     by_first[f] = uint64_t{std::min({t[0], t[1], t[2]})} << 32 | f;
   }
   release_memory(new_of);
-  std::sort(by_first.begin(), by_first.end());
+  radix_sort_by_key(by_first, [](uint64_t x) { return x; });
   std::vector<uint32_t> face_from(nf);
   for (size_t i = 0; i < nf; ++i) face_from[i] = static_cast<uint32_t>(by_first[i]);
   release_memory(by_first);

@@ -23,6 +23,7 @@
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
 #include "util/error.hpp"
+#include "util/radix_sort.hpp"
 
 namespace qemflow::nodes::pipeline {
 namespace {
@@ -1120,7 +1121,8 @@ class PatchBfs {
     for (size_t f = 0; f < nf; ++f)
       if (face_ring_[f] != kUnreached) forder.push_back({g.faces[f].fid, uint32_t(f)});
     release_memory(face_ring_);
-    tbb::parallel_sort(forder.begin(), forder.end());
+    // Keys are unique: the radix sort gives std::sort's order in a fraction of its CPU.
+    radix_sort_by_key(forder, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
     // Per vertex: its faces in the patch, and whether the one of smallest fid is owned.
     std::vector<uint32_t> inside(nv, 0);
     std::vector<uint8_t> first_owned(nv, 0);
@@ -1131,7 +1133,7 @@ class PatchBfs {
     vorder.reserve(size_t(nv - std::count(inside.begin(), inside.end(), 0u)));
     for (size_t v = 0; v < nv; ++v)
       if (inside[v]) vorder.push_back({vb[v].gid, uint32_t(v)});
-    tbb::parallel_sort(vorder.begin(), vorder.end());
+    radix_sort_by_key(vorder, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
     const size_t kept_v = vorder.size();
     PatchInput in;
     std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
