@@ -531,6 +531,16 @@ uint32_t morton(const Point& p, const Box& box) {
 
 // ---------------------------------------------------------------- conversion
 
+// What a conversion transform holds per face of its frame beside the frame's records,
+// leased with the frame (for_each_frame's out_record_size): the unpacked faces and
+// their sort keys, the results' blobs (a face and, in the worst case of an input in
+// random order, its three corners' vertex records), and the chunk being built (as
+// much again). It was 250: a shuffled 300k at 80M (--clusters 2) then held some 20 MiB
+// no lease covered and peaked at 89.7-93 MiB in the conversion in 2 of 4 runs at once
+// (each with a thread sampling its RSS every 2 ms); 69.5-76.8 MiB, in the epochs, after.
+constexpr uint32_t kConvertBytesPerFace =
+    sizeof(engine::BlockFace) + 24 + 2 * (sizeof(FaceRecord) + 3 * sizeof(VertexRecord));
+
 // Blocks → state chunks of one owner each, with degrees; per-owner face counts.
 void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const Partition& partition,
                     uint64_t chunk_faces, MeshState& state) {
@@ -565,6 +575,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
             return std::tie(owner, code, fid) < std::tie(o.owner, o.code, o.fid);
           }
         };
+        static_assert(sizeof(Keyed) == 24);  // as kConvertBytesPerFace counts it
         std::vector<Keyed> by_owner(faces.size());
         for (size_t i = 0; i < faces.size(); ++i) {
           Point c{};
@@ -580,8 +591,13 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
           while (last < by_owner.size() && by_owner[last].owner == by_owner[first].owner &&
                  last - first < chunk_faces)
             ++last;
+          // Reserved to size: grown by push_back, the vertex records of a chunk
+          // (3 x 136 bytes a face) held up to twice their size, with the copies they
+          // outgrew left in the heap beside them.
           std::vector<FaceRecord> fr;
           std::vector<VertexRecord> vr;
+          fr.reserve(last - first);
+          vr.reserve(3 * (last - first));
           double vertex_share = 0;
           std::array<double, ChunkMeta::kParts> run_share{};
           for (size_t i = first; i < last; ++i) {
@@ -630,7 +646,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
         for (auto& o : result) write_chunk(job, scratch, state, o.meta, o.blob, Lease(), "convert");
         job.progress(0.3 * double(++done) / double(frames.size()), "convert");
       },
-      250);
+      kConvertBytesPerFace);
   state.isolated_faces = isolated_faces;
   finish_state(job, scratch, state);
 }
