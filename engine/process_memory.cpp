@@ -45,10 +45,10 @@ bool reset_peak_resident() {
   return ok;
 }
 
-void tune_allocator(int trim_threshold) {
+void tune_allocator(int trim_threshold, int arenas) {
   mallopt(M_MMAP_THRESHOLD, 4 << 20);
   mallopt(M_TRIM_THRESHOLD, trim_threshold);
-  mallopt(M_ARENA_MAX, 2);
+  mallopt(M_ARENA_MAX, arenas);
 }
 
 void trim_allocator() { malloc_trim(0); }

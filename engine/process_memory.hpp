@@ -26,7 +26,13 @@ uint64_t window_peak_resident_bytes();
 // in flight) otherwise go back to the OS and fault in again, 236k page faults for
 // 20M faces at 256M against 64k (a fifth of its CPU time), peak RSS 94-100 MiB either
 // way; the slack (8 MiB an arena, two arenas) stays inside the baseline's margin.
-void tune_allocator(int trim_threshold = 1 << 20);
+// One arena by default: memory a thread frees goes back to its own arena, where only
+// the threads bound to that arena reuse it. With two, a patch built by the threads of
+// one arena left its heap part free but resident in that arena while the next patch
+// grew the other one: the shuffled 300k at 80M (--clusters 2), 4 runs at once with an
+// RSS sampling thread, peaked at 69.5-76.8 MiB in the epochs (7-18 MiB free in the
+// arenas at the peak), 66.8-69.4 with one arena (CPU seconds the same within noise).
+void tune_allocator(int trim_threshold = 1 << 20, int arenas = 1);
 // Returns freed heap memory to the OS (malloc_trim); cheap enough between passes.
 void trim_allocator();
 
