@@ -1065,10 +1065,12 @@ class Loader {
       if (local_size != id_triangle32_record_size || batch.triangles.empty()) return;
       const size_t faces = batch.triangles.size();
       // The header counts polygons, not the triangles fan-triangulated from them: the
-      // bound that matters is the records' u32 face ids.
+      // bound that matters is the records' u32 face ids. A valid file past it is our
+      // limit, not bad input (review12 L2): a resource error (exit 4).
       if (batch.first_triangle + faces > (uint64_t(1) << 32)) {
-        throw_bad_input(input_.path.string(), "triangle " + std::to_string(batch.first_triangle),
-                        "its polygons make more than 2^32 triangles, more than the re-encode can number");
+        throw Error(ErrorKind::resource, input_.path.string() + ": triangle " + std::to_string(batch.first_triangle) +
+                                             ": its polygons make more than 2^32 triangles, more than the "
+                                             "out-of-core re-encode's 32-bit face records can number");
       }
       item.block_records.resize(faces * id_triangle32_record_size);
       item.cells.resize(faces);
