@@ -16,6 +16,22 @@
 namespace qemflow::testing {
 namespace {
 
+// `simplify IN out.ply --ratio 1 --mem-budget 48M`: out of core, peak RSS within it.
+void expect_out_of_core_reencode_under_48m(const TempDir& dir, const std::filesystem::path& in) {
+  const auto report = dir / "r.json";
+  std::string out;
+  ASSERT_EQ(run_command(cli_path().string() + " simplify " + in.string() + " " + (dir / "out.ply").string() +
+                            " --ratio 1 --mem-budget 48M --quiet --report " + report.string() + " --scratch " +
+                            dir.path().string(),
+                        &out),
+            0)
+      << out;
+  const auto r = nlohmann::json::parse(file_bytes(report));
+  ASSERT_TRUE(r["out_of_core_dereference"].get<bool>());
+  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>())
+      << "baseline " << r["baseline_bytes"] << ", governor peak " << r["governor_peak_bytes"];
+}
+
 // Found by review6 (present at 58b3b41): 1M faces in random order with 10% of the
 // vertices shuffled, `qemflow simplify IN OUT --ratio 1 --mem-budget 48M` peaked at
 // 64-70 MiB of the 48 MiB budget (the governor lent ~16 MiB over a ~29 MiB baseline).
@@ -48,17 +64,7 @@ TEST(ReencodeCli, FacesInRandomOrderStayUnderATightBudget) {
   const auto in = dir / "shuffled.ply";
   io::write_mesh(in, mesh);
   std::filesystem::remove(blob);
-  const auto report = dir / "r.json";
-  ASSERT_EQ(run_command(cli_path().string() + " simplify " + in.string() + " " + (dir / "out.ply").string() +
-                            " --ratio 1 --mem-budget 48M --quiet --report " + report.string() + " --scratch " +
-                            dir.path().string(),
-                        &out),
-            0)
-      << out;
-  const auto r = nlohmann::json::parse(file_bytes(report));
-  ASSERT_TRUE(r["out_of_core_dereference"].get<bool>());
-  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>())
-      << "baseline " << r["baseline_bytes"] << ", governor peak " << r["governor_peak_bytes"];
+  expect_out_of_core_reencode_under_48m(dir, in);
 }
 
 // Every vertex and face in random order (gen --shuffle), 3M faces at 48M: the loader's
@@ -72,17 +78,7 @@ TEST(ReencodeCli, AWhollyShuffledMeshStaysUnderATightBudget) {
   std::string out;
   ASSERT_EQ(run_command(cli_path().string() + " gen " + in.string() + " --faces 3M --shuffle 9 --quiet", &out), 0)
       << out;
-  const auto report = dir / "r.json";
-  ASSERT_EQ(run_command(cli_path().string() + " simplify " + in.string() + " " + (dir / "out.ply").string() +
-                            " --ratio 1 --mem-budget 48M --quiet --report " + report.string() + " --scratch " +
-                            dir.path().string(),
-                        &out),
-            0)
-      << out;
-  const auto r = nlohmann::json::parse(file_bytes(report));
-  ASSERT_TRUE(r["out_of_core_dereference"].get<bool>());
-  EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), r["budget_bytes"].get<uint64_t>())
-      << "baseline " << r["baseline_bytes"] << ", governor peak " << r["governor_peak_bytes"];
+  expect_out_of_core_reencode_under_48m(dir, in);
 }
 
 // Found by review6 (present at 58b3b41): `qemflow simplify m.ply out.obj --ratio 1` (the
