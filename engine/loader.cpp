@@ -472,6 +472,9 @@ class Loader {
         info.vertex_count.value_or(0) * (sizeof(Point) + (options_.weld ? sizeof(uint64_t) : 0));
     bool resident = info.vertex_count && !options_.force_out_of_core && resident_bytes <= capacity_ * 6 / 10 &&
                     resident_bytes + BucketSpill::min_lease_bytes(sizeof(BlockFace)) <= reserve_.bytes();
+    // Known before the load (a PLY's vertex count): refused up front, not after a pass
+    // over the input (a sorted 6M faces at 48M read for 36-41 s first).
+    if (options_.degrees && info.vertex_count) require_state("the per-vertex face counts", *info.vertex_count);
     if (resident) {
       load_resident(*info.vertex_count, info.polygon_count.value_or(0));
     } else {
@@ -668,12 +671,18 @@ class Loader {
   // Per-vertex state (weld bits and duplicates, degree bytes) is held for the whole
   // load; refused up front when the budget cannot hold it.
   void take_state(const char* what, uint64_t bytes) {
-    if (bytes > reserve_.bytes() / 2) {
-      throw Error(ErrorKind::resource, std::string("loader: ") + what + " needs " + config::format_size(bytes) +
-                                           ", more than the memory budget leaves for it (" +
-                                           config::format_size(reserve_.bytes() / 2) + ")");
-    }
+    require_state(what, bytes);
     state_lease_.merge(reserve_.split(bytes, job_.owner("loader vertex state")));
+  }
+  void require_state(const char* what, uint64_t bytes) const {
+    if (bytes > reserve_.bytes() / 2) {
+      const uint64_t budget = job_.governor().budget();
+      throw Error(ErrorKind::resource, std::string("loader: ") + what + " needs " + config::format_size(bytes) +
+                                           ", more than --mem-budget " + config::format_size(budget) +
+                                           " leaves for it (" + config::format_size(reserve_.bytes() / 2) +
+                                           "); this needs a budget of at least about " +
+                                           config::format_size(budget + 2 * (2 * bytes - reserve_.bytes())));
+    }
   }
 
   void finish_weld(uint64_t vertex_count) {
@@ -996,33 +1005,47 @@ class Loader {
     uint64_t chunk = options_.window_vertices
                          ? options_.window_vertices
                          : std::max<uint64_t>(1024, uint64_t(double(capacity_) * 0.15) / sizeof(Point));
+    // An input without a vertex count (OBJ) is taken to have one vertex per 40 bytes
+    // of text (10 of zstd): more than a real file's ~80, so its chunk buckets are not
+    // undercounted (a shuffled 3M-face OBJ at 48M, taken as 16 chunks for 81, went to
+    // 222 MiB as the PLY had, review13).
+    const bool zstd_input = input_.path.extension() == ".zst";
+    const uint64_t vertices =
+        info.vertex_count.value_or(std::max<uint64_t>(input_.size / (zstd_input ? 10 : 40), 1));
     auto chunks_of = [&](uint64_t chunk) {
-      return info.vertex_count ? uint32_t(std::max<uint64_t>((*info.vertex_count + chunk - 1) / chunk, 1)) : 16;
+      return uint32_t(std::min<uint64_t>(std::max<uint64_t>((vertices + chunk - 1) / chunk, 1), UINT32_MAX));
     };
-    // Pass 1's spills hold two pages per chunk bucket (BucketSpill::min_lease_bytes):
-    // under a small reserve, fewer and larger chunks, while pass 2's pair of them
-    // leaves room for its two spills' smallest leases.
+    // Pass 1's spills hold two pages per chunk bucket where the reserve allows
+    // (BucketSpill::min_lease_bytes): under a small reserve, fewer and larger chunks,
+    // while pass 2's pair of them leaves room for its two spills' smallest leases.
     auto pass1_min = [&](uint32_t chunks) {
       return BucketSpill::min_lease_bytes(local_record_size(), chunks) +
              BucketSpill::min_lease_bytes(sizeof(CornerRef), chunks) +
              (options_.weld ? BucketSpill::min_lease_bytes(sizeof(WeldRecord), weld_buckets_for(chunks)) : 0);
     };
+    // Pass 2 also holds the per-vertex face counts (1 B a vertex) when they are kept.
+    const uint64_t pass2_rest = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace)) + (options_.degrees ? vertices : 0);
     while (!options_.window_vertices && pass1_min(chunks_of(chunk)) > uint64_t(double(capacity_) * 0.4) &&
-           2 * (chunk + chunk / 4) * sizeof(Point) + 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace)) <=
-               capacity_) {
+           2 * (chunk + chunk / 4) * sizeof(Point) + pass2_rest <= capacity_) {
       chunk += chunk / 4;
     }
     mesh_.vertices.window = chunk;
     const uint32_t expected_chunks = chunks_of(chunk);
+    // Where even that does not fit (a large input at a budget near the loader's
+    // minimum), the spills take their fractions as before: an input with locality
+    // still loads, and one in random order makes small frames (README, re-encode).
+    const bool paged = pass1_min(expected_chunks) <= uint64_t(double(capacity_) * 0.4);
+    auto paged_buckets = [&](uint32_t buckets) { return paged ? buckets : 1u; };
 
     // Pass 1: vertices to chunks in scratch; local faces bucketed by their first
     // chunk, the corners of the others by their vertex's chunk.
     const uint32_t local_size = local_record_size();
     BucketSpill local(job_, scratch_, "local-faces", local_size,
-                      spill_lease("face bucketer", 0.2, local_size, expected_chunks), expected_chunks, "load");
+                      spill_lease("face bucketer", 0.2, local_size, paged_buckets(expected_chunks)),
+                      expected_chunks, "load");
     BucketSpill corners(job_, scratch_, "corners", sizeof(CornerRef),
-                        spill_lease("corner bucketer", 0.1, sizeof(CornerRef), expected_chunks), expected_chunks,
-                        "load");
+                        spill_lease("corner bucketer", 0.1, sizeof(CornerRef), paged_buckets(expected_chunks)),
+                        expected_chunks, "load");
     // Out of core, the weld sorts (position, index) records by position-hash bucket,
     // one bucket at a time; and the degree count reads every face once before the
     // dereference, so spanning faces are also kept whole.
@@ -1030,7 +1053,8 @@ class Loader {
     std::optional<BucketSpill> weld_spill, spanning;
     if (options_.weld) {
       weld_spill.emplace(job_, scratch_, "weld", sizeof(WeldRecord),
-                         spill_lease("weld bucketer", 0.1, sizeof(WeldRecord), weld_buckets), weld_buckets, "load");
+                         spill_lease("weld bucketer", 0.1, sizeof(WeldRecord), paged_buckets(weld_buckets)),
+                         weld_buckets, "load");
     }
     if (options_.degrees) {
       spanning.emplace(job_, scratch_, "spanning-faces", sizeof(LocalFace),
