@@ -15,6 +15,7 @@
 #include "engine/process_memory.hpp"
 #include "engine/spill.hpp"
 #include "engine/stream_pass.hpp"
+#include "io/mesh_file_kind.hpp"
 #include "io/mesh_stream.hpp"
 #include "io/ply_bulk.hpp"
 #include "util/error.hpp"
@@ -1009,23 +1010,24 @@ class Loader {
     // of text (10 of zstd): more than a real file's ~80, so its chunk buckets are not
     // undercounted (a shuffled 3M-face OBJ at 48M, taken as 16 chunks for 81, went to
     // 222 MiB as the PLY had, review13).
-    const bool zstd_input = input_.path.extension() == ".zst";
-    const uint64_t vertices =
-        info.vertex_count.value_or(std::max<uint64_t>(input_.size / (zstd_input ? 10 : 40), 1));
+    const uint64_t vertices = info.vertex_count.value_or(
+        std::max<uint64_t>(input_.size / (io::mesh_file_kind(input_.path).zstd ? 10 : 40), 1));
     auto chunks_of = [&](uint64_t chunk) {
       return uint32_t(std::min<uint64_t>(std::max<uint64_t>((vertices + chunk - 1) / chunk, 1), UINT32_MAX));
     };
     // Pass 1's spills hold two pages per chunk bucket where the reserve allows
     // (BucketSpill::min_lease_bytes): under a small reserve, fewer and larger chunks,
     // while pass 2's pair of them leaves room for its two spills' smallest leases.
+    const uint32_t local_size = local_record_size();
+    const uint64_t pass1_room = uint64_t(double(capacity_) * 0.4);
     auto pass1_min = [&](uint32_t chunks) {
-      return BucketSpill::min_lease_bytes(local_record_size(), chunks) +
+      return BucketSpill::min_lease_bytes(local_size, chunks) +
              BucketSpill::min_lease_bytes(sizeof(CornerRef), chunks) +
              (options_.weld ? BucketSpill::min_lease_bytes(sizeof(WeldRecord), weld_buckets_for(chunks)) : 0);
     };
     // Pass 2 also holds the per-vertex face counts (1 B a vertex) when they are kept.
     const uint64_t pass2_rest = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace)) + (options_.degrees ? vertices : 0);
-    while (!options_.window_vertices && pass1_min(chunks_of(chunk)) > uint64_t(double(capacity_) * 0.4) &&
+    while (!options_.window_vertices && pass1_min(chunks_of(chunk)) > pass1_room &&
            2 * (chunk + chunk / 4) * sizeof(Point) + pass2_rest <= capacity_) {
       chunk += chunk / 4;
     }
@@ -1034,12 +1036,11 @@ class Loader {
     // Where even that does not fit (a large input at a budget near the loader's
     // minimum), the spills take their fractions as before: an input with locality
     // still loads, and one in random order makes small frames (README, re-encode).
-    const bool paged = pass1_min(expected_chunks) <= uint64_t(double(capacity_) * 0.4);
+    const bool paged = pass1_min(expected_chunks) <= pass1_room;
     auto paged_buckets = [&](uint32_t buckets) { return paged ? buckets : 1u; };
 
     // Pass 1: vertices to chunks in scratch; local faces bucketed by their first
     // chunk, the corners of the others by their vertex's chunk.
-    const uint32_t local_size = local_record_size();
     BucketSpill local(job_, scratch_, "local-faces", local_size,
                       spill_lease("face bucketer", 0.2, local_size, paged_buckets(expected_chunks)),
                       expected_chunks, "load");
