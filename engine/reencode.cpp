@@ -581,7 +581,16 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
       // with any raw ones among them copied beside: a sort then works in place either way.
       Bytes decoded;
       uint64_t faces = 0;
-      auto decode_all = [&] {
+      bool in_place = raw_frames;
+      for (size_t f = 0; in_place && f < item.at.size(); ++f) {
+        std::byte* frame = item.frames.data() + item.at[f].first;
+        Bytes unexpected;  // a compressed frame's records, dropped: decoded again below
+        const FrameHeader header = decode_frame_in_place(frame, item.at[f].second, record, unexpected, "block frame");
+        in_place = header.raw;
+        records.emplace_back(frame + frame_header_bytes, header.count * record);
+        faces += header.count;
+      }
+      if (!in_place) {
         records.clear();
         faces = 0;
         decoded.resize(mesh.block_faces[item.cell] * record);
@@ -592,18 +601,6 @@ FaceIdOrderStats write_blocks_in_face_id_order(Job& job, ScratchStore& scratch, 
           records.emplace_back(at, header.count * record);
           faces += header.count;
         }
-      };
-      if (!raw_frames) decode_all();
-      for (size_t f = 0; raw_frames && f < item.at.size(); ++f) {
-        std::byte* frame = item.frames.data() + item.at[f].first;
-        Bytes unexpected;  // a compressed frame's records, dropped: decode_all decodes it again
-        const FrameHeader header = decode_frame_in_place(frame, item.at[f].second, record, unexpected, "block frame");
-        if (!header.raw) {
-          decode_all();
-          break;
-        }
-        records.emplace_back(frame + frame_header_bytes, header.count * record);
-        faces += header.count;
       }
       if (faces != mesh.block_faces[item.cell]) throw Error(ErrorKind::internal, "a block holds other faces than it counted");
       item.ordering = merge(records, item.out);
