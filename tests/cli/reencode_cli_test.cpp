@@ -16,6 +16,13 @@
 namespace qemflow::testing {
 namespace {
 
+// `qemflow gen OUT GEN_ARGS`.
+void generate(const std::filesystem::path& out_path, const std::string& gen_args) {
+  std::string out;
+  ASSERT_EQ(run_command(cli_path().string() + " gen " + out_path.string() + " " + gen_args + " --quiet", &out), 0)
+      << out;
+}
+
 // `simplify IN out.ply --ratio 1 --mem-budget 48M`: out of core, peak RSS within it.
 void expect_out_of_core_reencode_under_48m(const TempDir& dir, const std::filesystem::path& in) {
   const auto report = dir / "r.json";
@@ -42,8 +49,7 @@ void expect_out_of_core_reencode_under_48m(const TempDir& dir, const std::filesy
 TEST(ReencodeCli, FacesInRandomOrderStayUnderATightBudget) {
   TempDir dir;
   const auto blob = dir / "blob.ply";
-  std::string out;
-  ASSERT_EQ(run_command(cli_path().string() + " gen " + blob.string() + " --faces 1M --quiet", &out), 0) << out;
+  ASSERT_NO_FATAL_FAILURE(generate(blob, "--faces 1M"));
   io::IndexedMesh mesh = io::read_mesh(blob);
   std::mt19937_64 random(9);
   const size_t n = mesh.vertices.size();
@@ -79,9 +85,7 @@ TEST(ReencodeCli, AWhollyShuffledMeshStaysUnderATightBudget) {
     SCOPED_TRACE(format);
     TempDir dir;
     const auto in = dir / (std::string("shuffled") + format);
-    std::string out;
-    ASSERT_EQ(run_command(cli_path().string() + " gen " + in.string() + " --faces 3M --shuffle 9 --quiet", &out), 0)
-        << out;
+    ASSERT_NO_FATAL_FAILURE(generate(in, "--faces 3M --shuffle 9"));
     expect_out_of_core_reencode_under_48m(dir, in);
   }
 }
@@ -93,8 +97,7 @@ TEST(ReencodeCli, AWhollyShuffledMeshStaysUnderATightBudget) {
 TEST(ReencodeCli, AnOrderedMeshTooLargeToPageEveryChunkStillLoads) {
   TempDir dir;
   const auto in = dir / "ordered.ply";
-  std::string out;
-  ASSERT_EQ(run_command(cli_path().string() + " gen " + in.string() + " --faces 10M --quiet", &out), 0) << out;
+  ASSERT_NO_FATAL_FAILURE(generate(in, "--faces 10M"));
   expect_out_of_core_reencode_under_48m(dir, in);
 }
 
@@ -107,7 +110,7 @@ TEST(ReencodeCli, RatioOneToObjGivesTheInCoreBytes) {
   TempDir dir;
   const auto mesh = dir / "blob.ply";
   std::string out;
-  ASSERT_EQ(run_command(cli_path().string() + " gen " + mesh.string() + " --faces 20000 --quiet", &out), 0) << out;
+  ASSERT_NO_FATAL_FAILURE(generate(mesh, "--faces 20000"));
   for (const char* mode : {" --in-core", " --mem-budget 64M"}) {  // 64M: out of core
     const auto result = dir / (std::string(mode[3] == 'i' ? "in_core" : "budget") + ".obj");
     ASSERT_EQ(run_command(cli_path().string() + " simplify " + mesh.string() + " " + result.string() + " --ratio 1" +
