@@ -305,6 +305,7 @@ struct PatchDecimator::Scratch {
   std::vector<uint64_t> fan_index;    // find_in_fan's index
   std::vector<double> areas;
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
+  uint64_t scanned = 0;    // faces read by validity checks and charges (prepare's counter)
   uint64_t frozen = 0;     // refreshes skipped at frozen vertices (prepare's counter)
 };
 
@@ -403,7 +404,7 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
     if (gid == kBestUnknown || (!dist.empty() && dist[v] <= kBestRadius)) return;
     uint32_t best = kNone;
     if (gid != kBestNone) {
-      if (vflag_[v] & kLocked) return;  // refresh_best gives a locked vertex none
+      if (immovable(v)) return;  // refresh_best gives an immovable vertex none
       for (uint32_t c : corners_of(v))
         for (uint32_t u : fv_[c / 3])
           if (u != v && vgid_[u] == gid) best = u;
@@ -436,13 +437,13 @@ std::pair<uint32_t, double> PatchDecimator::best_from_scratch(uint32_t v, Scratc
   // in full (quadric part + deviation charge, as quadric_cost / edge_cost compute them)
   // and checked for validity; the smallest valid key wins. Reads no cached cost or
   // validity (deviation() may fill the face-area cache, a pure function of the state).
-  if (vflag_[v] & (kDead | kLocked)) return {kNone, 0.0};
+  if ((vflag_[v] & kDead) || immovable(v)) return {kNone, 0.0};
   const std::span<const uint32_t> corners = corners_of(v);
   fan_neighbors(v, corners, s);
   uint32_t best = kNone;
   EdgeKey best_key{};
   for (const auto& [w, corner, twin] : s.fan()) {
-    if (vflag_[w] & kLocked) continue;
+    if (immovable(w)) continue;
     const Vec3 p = edge_position(v, w);
     double cost = quadric_error(quadric_[v] + quadric_[w], p);
     if (!(std::isfinite(cost) && std::isfinite(p[0] + p[1] + p[2]))) continue;
@@ -704,7 +705,7 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
 }
 
 void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut) {
-  if (vflag_[v] & (kDead | kLocked)) {
+  if ((vflag_[v] & kDead) || immovable(v)) {
     best_[v] = kNone;
     return;
   }
@@ -736,7 +737,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   s.options.clear();
   const bool charged = params_.deviation_weight > 0.0;
   for (const auto& [w, corner, twin] : s.fan()) {
-    if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
+    if (immovable(w) || (near_touched_only && !touched_[w])) continue;
     // Unknown costs start from their quadric part, a lower bound of the cost: the
     // deviation part is computed only for options that could still win.
     // A cached quadric part needs no position until the option is charged.
@@ -783,7 +784,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       if (o.key.cost != kSkipEdge && o.key < bound) continue;
     } else {
       checked = true;
-      if (edge_valid(v, corners, s.fan(), o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr)) {
+      if (edge_valid(v, corners, s.fan(), o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr, s)) {
         best_[v] = o.other;
         best_cost_[v] = o.key.cost;
         return;
@@ -796,7 +797,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
 
 bool PatchDecimator::edge_valid(uint32_t v, std::span<const uint32_t> corners_v,
                                 std::span<const FanEdge> fan_v, uint32_t w, uint32_t corner,
-                                uint32_t twin, const Vec3* position) {
+                                uint32_t twin, const Vec3* position, Scratch& s) {
   // collapse_valid(v, .., w, p) == collapse_valid(w, .., v, p) (every test is symmetric
   // in the endpoints, and p is the edge's position either way), a function of both
   // endpoints' faces, border flags and their vertices' positions: all of which change
@@ -808,6 +809,7 @@ bool PatchDecimator::edge_valid(uint32_t v, std::span<const uint32_t> corners_v,
   const uint8_t known = (load_face(falive_, at / 3) >> shift) & 3u;
   if (known) return known == kEdgeValid;
   // The same function of the same inputs as quadric_cost's position: the same bits.
+  s.scanned += corners_v.size() + adj_count_[w];
   const bool valid = collapse_valid(v, corners_v, fan_v, w, position ? *position : edge_position(v, w));
   std::atomic_ref<uint8_t>(falive_[at / 3])
       .fetch_or(static_cast<uint8_t>((valid ? kEdgeValid : kEdgeInvalid) << shift), std::memory_order_relaxed);
@@ -862,6 +864,7 @@ double PatchDecimator::quadric_cost(uint32_t v, uint32_t w, uint32_t corner, uin
 double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin,
                                  double quadric, const Vec3& position, Scratch& s) {
   const bool v_lo = vgid_[v] < vgid_[w];
+  s.scanned += adj_count_[v] + adj_count_[w];
   double cost = quadric + params_.deviation_weight * (v_lo ? deviation(v, w, position, s)
                                                            : deviation(w, v, position, s));
   if (!std::isfinite(cost)) cost = kSkipEdge;
@@ -1065,13 +1068,19 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
   // twice while they grow) were the largest part of the in-core peak memory.
   tbb::enumerable_thread_specific<Scratch> scratch;
   const bool charged = params_.deviation_weight > 0.0;
+  // Some touched vertex may have fallen to kMaxCollapseDegree: its edges are options
+  // again, which a stale neighbour's floor did not count.
+  std::atomic<bool> degree_fell{false};
   // Touched vertices (the last collapses' first rings; only they can have lost a face):
   // compact their lists, update their border flags, and mark them and their second
   // ring dirty (edges to a touched vertex may have changed validity).
   parallel_over_with(nv, scratch, [&](size_t vi, Scratch& s) {
     if (!touched_[vi]) return;
     const uint32_t v = static_cast<uint32_t>(vi);
+    const bool was_above = adj_count_[v] > kMaxCollapseDegree;  // (dead faces counted too)
     compact_list(v);
+    if (was_above && adj_count_[v] <= kMaxCollapseDegree && !degree_fell.load(std::memory_order_relaxed))
+      degree_fell.store(true, std::memory_order_relaxed);
     // v's faces, or a vertex of one of them, changed (a collapse touches its kept
     // vertex's whole first ring): the area of v's faces is to be summed again.
     face_area_[v] = kUnknownCost;
@@ -1100,6 +1109,7 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
   // edges cost more; while untouched its edge costs stay, so under a cut <= that
   // floor it would be skipped again.
   const bool keep_stale = cut && has_stale_ && !(stale_floor_ < *cut);
+  const bool near_degree_fell = degree_fell.load();
   std::atomic<bool> deferred{false};
   // The dirty vertices: every vertex with dirty_ != 0 now (the loop below leaves it
   // non-zero, 1 or stale, at each of them, and writes no other vertex's).
@@ -1110,9 +1120,10 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
     const bool stale = dirty_[v] >= kDirtyStale;
     // With a deviation charge, an edge's cost also changes when a neighbour is touched:
     // only then do v's costs not stay while v is untouched.
+    // So do they when a neighbour's degree fell to kMaxCollapseDegree (a new option).
     // Its smallest edge cost (or lower bound) when it was left stale, kept in
     // best_cost_, is another such floor, for this vertex alone.
-    if (stale && cut && !touched_[v] && !(charged && dirty_[v] == kDirtyStaleNearTouched) &&
+    if (stale && cut && !touched_[v] && !((charged || near_degree_fell) && dirty_[v] == kDirtyStaleNearTouched) &&
         (keep_stale || cut->cost < best_cost_[v]))
       return;
     dirty_[v] = 1;
@@ -1136,6 +1147,7 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
   }
   for (const Scratch& s : scratch) {
     refreshes_ += s.refreshed;
+    scanned_faces_ += s.scanned;
     frozen_refreshes_ += s.frozen;
   }
   bests_exact_ = !cut;
