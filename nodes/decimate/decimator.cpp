@@ -116,11 +116,27 @@ void parallel_over(size_t n, F&& body, size_t grain = 1024) {
 constexpr uint32_t kNextSlot[3] = {1, 2, 0};
 constexpr uint32_t kPrevSlot[3] = {2, 0, 1};
 
-// The first i < n with list[i] == x, or n. Fans are short: a plain scan.
-uint32_t index_of(const uint32_t* list, uint32_t n, uint32_t x) {
-  uint32_t i = 0;
-  while (i < n && list[i] != x) ++i;
-  return i;
+// Fans up to this size are searched by a plain scan; longer ones (a hub's) through a
+// sorted index, so finding each of n entries costs O(log n), not O(n).
+constexpr uint32_t kScanFan = 32;
+
+// The first i < n with at(i) == x, or n. `index` is scratch for a fan longer than
+// kScanFan (at(i) << 32 | i, sorted; built by the first lookup in a fan, so pass it
+// cleared for each new fan).
+template <class At>
+uint32_t find_in_fan(uint32_t n, At&& at, uint32_t x, std::vector<uint64_t>& index) {
+  if (n <= kScanFan) {
+    uint32_t i = 0;
+    while (i < n && at(i) != x) ++i;
+    return i;
+  }
+  if (index.empty()) {
+    index.resize(n);
+    for (uint32_t i = 0; i < n; ++i) index[i] = uint64_t{at(i)} << 32 | i;
+    std::sort(index.begin(), index.end());
+  }
+  const auto it = std::lower_bound(index.begin(), index.end(), uint64_t{x} << 32);
+  return it != index.end() && (*it >> 32) == x ? static_cast<uint32_t>(*it) : n;
 }
 
 // parallel_over with one thread-local Scratch per range (looked up once per range, not
@@ -135,22 +151,29 @@ void parallel_over_with(size_t n, tbb::enumerable_thread_specific<S>& scratch, F
                     });
 }
 
-// Sorted (neighbor, number of faces shared with v) of a vertex, from its faces.
-void neighbor_counts(uint32_t v, const std::vector<uint32_t>& faces,
-                     const std::vector<std::array<uint32_t, 3>>& fv,
-                     std::vector<uint32_t>& others,
-                     std::vector<std::pair<uint32_t, uint32_t>>& out) {
-  others.clear();
-  for (uint32_t f : faces)
-    for (uint32_t u : fv[f])
-      if (u != v) others.push_back(u);
-  std::sort(others.begin(), others.end());
+// v's neighbours from its faces: `pairs` = (neighbour << 32 | index in `faces`) sorted,
+// and per neighbour, ascending, (neighbour, number of faces shared with v, position of
+// its first pair): the faces shared with w are pairs[first, first + count), in
+// ascending index. Lets a hub of degree n find an edge's faces without an O(n) scan
+// per edge (O(n^2) at setup).
+struct Neighbor {
+  uint32_t vertex, count, first;
+};
+void neighbor_faces(uint32_t v, const std::vector<uint32_t>& faces,
+                    const std::vector<std::array<uint32_t, 3>>& fv, std::vector<uint64_t>& pairs,
+                    std::vector<Neighbor>& out) {
+  pairs.clear();
+  for (uint32_t i = 0; i < faces.size(); ++i)
+    for (uint32_t u : fv[faces[i]])
+      if (u != v) pairs.push_back(uint64_t{u} << 32 | i);
+  std::sort(pairs.begin(), pairs.end());
   out.clear();
-  for (uint32_t u : others) {
-    if (!out.empty() && out.back().first == u)
-      ++out.back().second;
+  for (uint32_t j = 0; j < pairs.size(); ++j) {
+    const uint32_t u = static_cast<uint32_t>(pairs[j] >> 32);
+    if (!out.empty() && out.back().vertex == u)
+      ++out.back().count;
     else
-      out.push_back({u, 1});
+      out.push_back({u, 1, j});
   }
 }
 
@@ -261,8 +284,9 @@ void RoundSummary::add(const RoundSummary& other) {
 }
 
 struct PatchDecimator::Scratch {
-  std::vector<uint32_t> fa, fb, faces, others;
-  std::vector<std::pair<uint32_t, uint32_t>> na, nb;
+  std::vector<uint32_t> fb, faces;
+  std::vector<uint64_t> pairs;
+  std::vector<Neighbor> neighbors;
   struct Option {
     EdgeKey key;
     uint32_t other, corner, twin;
@@ -278,8 +302,10 @@ struct PatchDecimator::Scratch {
   uint32_t fan_size = 0;
   std::span<const FanEdge> fan() const { return {fan_store.data(), fan_size}; }
   std::vector<uint32_t> next, prev;  // fan_links()
+  std::vector<uint64_t> fan_index;    // find_in_fan's index
   std::vector<double> areas;
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
+  uint64_t scanned = 0;    // faces read by validity checks and charges (prepare's counter)
   uint64_t frozen = 0;     // refreshes skipped at frozen vertices (prepare's counter)
 };
 
@@ -378,7 +404,7 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
     if (gid == kBestUnknown || (!dist.empty() && dist[v] <= kBestRadius)) return;
     uint32_t best = kNone;
     if (gid != kBestNone) {
-      if (vflag_[v] & kLocked) return;  // refresh_best gives a locked vertex none
+      if (immovable(v)) return;  // refresh_best gives an immovable vertex none
       for (uint32_t c : corners_of(v))
         for (uint32_t u : fv_[c / 3])
           if (u != v && vgid_[u] == gid) best = u;
@@ -411,13 +437,13 @@ std::pair<uint32_t, double> PatchDecimator::best_from_scratch(uint32_t v, Scratc
   // in full (quadric part + deviation charge, as quadric_cost / edge_cost compute them)
   // and checked for validity; the smallest valid key wins. Reads no cached cost or
   // validity (deviation() may fill the face-area cache, a pure function of the state).
-  if (vflag_[v] & (kDead | kLocked)) return {kNone, 0.0};
+  if ((vflag_[v] & kDead) || immovable(v)) return {kNone, 0.0};
   const std::span<const uint32_t> corners = corners_of(v);
   fan_neighbors(v, corners, s);
   uint32_t best = kNone;
   EdgeKey best_key{};
   for (const auto& [w, corner, twin] : s.fan()) {
-    if (vflag_[w] & kLocked) continue;
+    if (immovable(w)) continue;
     const Vec3 p = edge_position(v, w);
     double cost = quadric_error(quadric_[v] + quadric_[w], p);
     if (!(std::isfinite(cost) && std::isfinite(p[0] + p[1] + p[2]))) continue;
@@ -518,7 +544,7 @@ void PatchDecimator::lock_nonmanifold_vertices() {
     if (vflag_[v] & kLocked) return;
     gather_faces(v, s.faces);
     if (s.faces.empty()) return;
-    neighbor_counts(v, s.faces, fv_, s.others, s.na);
+    neighbor_faces(v, s.faces, fv_, s.pairs, s.neighbors);
     bool bad = false;
     // Union-find over the faces around v, joined across manifold edges: more than one
     // fan means a non-manifold vertex.
@@ -530,19 +556,20 @@ void PatchDecimator::lock_nonmanifold_vertices() {
       return x;
     };
     size_t components = m;
-    for (const auto& [w, count] : s.na) {
+    for (const auto& [w, count, first] : s.neighbors) {
       if (count > 2) { bad = true; break; }
       if (count != 2) continue;
-      uint32_t idx[2], n = 0;
+      uint32_t idx[2];
       int direction[2];
-      for (uint32_t i = 0; i < m && n < 2; ++i) {
-        const auto& t = fv_[s.faces[i]];
+      for (int n = 0; n < 2; ++n) {  // both faces hold the edge, one way or the other
+        idx[n] = static_cast<uint32_t>(s.pairs[first + n]);
+        const auto& t = fv_[s.faces[idx[n]]];
         for (int k = 0; k < 3; ++k) {
-          if (t[k] == v && t[(k + 1) % 3] == w) { idx[n] = i; direction[n++] = 1; break; }
-          if (t[k] == w && t[(k + 1) % 3] == v) { idx[n] = i; direction[n++] = -1; break; }
+          if (t[k] == v && t[(k + 1) % 3] == w) { direction[n] = 1; break; }
+          if (t[k] == w && t[(k + 1) % 3] == v) { direction[n] = -1; break; }
         }
       }
-      if (n != 2 || direction[0] == direction[1]) { bad = true; break; }
+      if (direction[0] == direction[1]) { bad = true; break; }
       const uint32_t ra = find(idx[0]), rb = find(idx[1]);
       if (ra != rb) { s.fb[ra] = rb; --components; }
     }
@@ -563,10 +590,10 @@ void PatchDecimator::compute_quadrics() {
       const auto& t = fv_[f];
       q += face_quadric(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
     }
-    neighbor_counts(v, s.faces, fv_, s.others, s.na);
-    auto count_of = [&](uint32_t w) {
-      auto it = std::lower_bound(s.na.begin(), s.na.end(), std::pair<uint32_t, uint32_t>{w, 0});
-      return (it != s.na.end() && it->first == w) ? it->second : 0u;
+    neighbor_faces(v, s.faces, fv_, s.pairs, s.neighbors);
+    auto neighbor_of = [&](uint32_t w) {
+      return *std::lower_bound(s.neighbors.begin(), s.neighbors.end(), w,
+                               [](const Neighbor& x, uint32_t y) { return x.vertex < y; });
     };
     auto unit = [](Vec3 n) {
       const double len = std::sqrt(dot(n, n));
@@ -579,15 +606,15 @@ void PatchDecimator::compute_quadrics() {
         const uint32_t p = t[k], r = t[(k + 1) % 3];
         if (p != v && r != v) continue;
         const uint32_t w = p == v ? r : p;
-        const uint32_t count = count_of(w);
-        bool constrain = count == 1;
-        if (count == 2) {
-          for (uint32_t g : s.faces) {
-            if (g == f || !contains(fv_[g], w)) continue;
-            const auto& u = fv_[g];
-            constrain = dot(unit(n), unit(triangle_normal(pos_[u[0]], pos_[u[1]], pos_[u[2]]))) <
-                        params_.fold_cos;
-          }
+        const Neighbor nw = neighbor_of(w);  // w is in f: listed
+        bool constrain = nw.count == 1;
+        if (nw.count == 2) {
+          // The edge's other face.
+          const uint32_t g0 = s.faces[static_cast<uint32_t>(s.pairs[nw.first])];
+          const uint32_t g = g0 != f ? g0 : s.faces[static_cast<uint32_t>(s.pairs[nw.first + 1])];
+          const auto& u = fv_[g];
+          constrain = dot(unit(n), unit(triangle_normal(pos_[u[0]], pos_[u[1]], pos_[u[2]]))) <
+                      params_.fold_cos;
         }
         if (constrain) q += boundary_quadric(pos_[p], pos_[r], n, params_.boundary_weight);
       }
@@ -678,7 +705,7 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
 }
 
 void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only, const EdgeKey* cut) {
-  if (vflag_[v] & (kDead | kLocked)) {
+  if ((vflag_[v] & kDead) || immovable(v)) {
     best_[v] = kNone;
     return;
   }
@@ -710,7 +737,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   s.options.clear();
   const bool charged = params_.deviation_weight > 0.0;
   for (const auto& [w, corner, twin] : s.fan()) {
-    if ((vflag_[w] & kLocked) || (near_touched_only && !touched_[w])) continue;
+    if (immovable(w) || (near_touched_only && !touched_[w])) continue;
     // Unknown costs start from their quadric part, a lower bound of the cost: the
     // deviation part is computed only for options that could still win.
     // A cached quadric part needs no position until the option is charged.
@@ -757,7 +784,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
       if (o.key.cost != kSkipEdge && o.key < bound) continue;
     } else {
       checked = true;
-      if (edge_valid(v, corners, s.fan(), o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr)) {
+      if (edge_valid(v, corners, s.fan(), o.other, o.corner, o.twin, o.has_position ? &o.position : nullptr, s)) {
         best_[v] = o.other;
         best_cost_[v] = o.key.cost;
         return;
@@ -770,7 +797,7 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
 
 bool PatchDecimator::edge_valid(uint32_t v, std::span<const uint32_t> corners_v,
                                 std::span<const FanEdge> fan_v, uint32_t w, uint32_t corner,
-                                uint32_t twin, const Vec3* position) {
+                                uint32_t twin, const Vec3* position, Scratch& s) {
   // collapse_valid(v, .., w, p) == collapse_valid(w, .., v, p) (every test is symmetric
   // in the endpoints, and p is the edge's position either way), a function of both
   // endpoints' faces, border flags and their vertices' positions: all of which change
@@ -782,6 +809,7 @@ bool PatchDecimator::edge_valid(uint32_t v, std::span<const uint32_t> corners_v,
   const uint8_t known = (load_face(falive_, at / 3) >> shift) & 3u;
   if (known) return known == kEdgeValid;
   // The same function of the same inputs as quadric_cost's position: the same bits.
+  s.scanned += corners_v.size() + adj_count_[w];
   const bool valid = collapse_valid(v, corners_v, fan_v, w, position ? *position : edge_position(v, w));
   std::atomic_ref<uint8_t>(falive_[at / 3])
       .fetch_or(static_cast<uint8_t>((valid ? kEdgeValid : kEdgeInvalid) << shift), std::memory_order_relaxed);
@@ -836,6 +864,7 @@ double PatchDecimator::quadric_cost(uint32_t v, uint32_t w, uint32_t corner, uin
 double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32_t twin,
                                  double quadric, const Vec3& position, Scratch& s) {
   const bool v_lo = vgid_[v] < vgid_[w];
+  s.scanned += adj_count_[v] + adj_count_[w];
   double cost = quadric + params_.deviation_weight * (v_lo ? deviation(v, w, position, s)
                                                            : deviation(w, v, position, s));
   if (!std::isfinite(cost)) cost = kSkipEdge;
@@ -914,10 +943,11 @@ void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners
   }
   uint32_t count = n;
   const bool border = (vflag_[v] & kBorder) != 0;
+  s.fan_index.clear();
   for (uint32_t i = 0; i < n; ++i) {
     const uint32_t c = corners[i], before = c - c % 3 + kPrevSlot[c % 3];  // prev -> v
-    uint32_t at = 0;  // the neighbour after v that is prev[i] (fans are short: a scan)
-    while (at < n && out[at].other != prev[i]) ++at;
+    // The neighbour after v that is prev[i].
+    const uint32_t at = find_in_fan(n, [&](uint32_t j) { return out[j].other; }, prev[i], s.fan_index);
     if (at != n)
       out[at].twin = before;
     else if (border)
@@ -934,7 +964,9 @@ void PatchDecimator::update_border(uint32_t v, Scratch& s) {
   fan_links(corners, s);
   const uint32_t n = static_cast<uint32_t>(corners.size());
   bool border = false;
-  for (uint32_t i = 0; i < n && !border; ++i) border = index_of(s.next.data(), n, s.prev[i]) == n;
+  s.fan_index.clear();
+  for (uint32_t i = 0; i < n && !border; ++i)
+    border = find_in_fan(n, [&](uint32_t j) { return s.next[j]; }, s.prev[i], s.fan_index) == n;
   vflag_[v] = static_cast<uint8_t>(border ? (vflag_[v] | kBorder) : (vflag_[v] & ~kBorder));
 }
 
@@ -1036,13 +1068,19 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
   // twice while they grow) were the largest part of the in-core peak memory.
   tbb::enumerable_thread_specific<Scratch> scratch;
   const bool charged = params_.deviation_weight > 0.0;
+  // Some touched vertex may have fallen to kMaxCollapseDegree: its edges are options
+  // again, which a stale neighbour's floor did not count.
+  std::atomic<bool> degree_fell{false};
   // Touched vertices (the last collapses' first rings; only they can have lost a face):
   // compact their lists, update their border flags, and mark them and their second
   // ring dirty (edges to a touched vertex may have changed validity).
   parallel_over_with(nv, scratch, [&](size_t vi, Scratch& s) {
     if (!touched_[vi]) return;
     const uint32_t v = static_cast<uint32_t>(vi);
+    const bool was_above = adj_count_[v] > kMaxCollapseDegree;  // (dead faces counted too)
     compact_list(v);
+    if (was_above && adj_count_[v] <= kMaxCollapseDegree && !degree_fell.load(std::memory_order_relaxed))
+      degree_fell.store(true, std::memory_order_relaxed);
     // v's faces, or a vertex of one of them, changed (a collapse touches its kept
     // vertex's whole first ring): the area of v's faces is to be summed again.
     face_area_[v] = kUnknownCost;
@@ -1071,6 +1109,7 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
   // edges cost more; while untouched its edge costs stay, so under a cut <= that
   // floor it would be skipped again.
   const bool keep_stale = cut && has_stale_ && !(stale_floor_ < *cut);
+  const bool near_degree_fell = degree_fell.load();
   std::atomic<bool> deferred{false};
   // The dirty vertices: every vertex with dirty_ != 0 now (the loop below leaves it
   // non-zero, 1 or stale, at each of them, and writes no other vertex's).
@@ -1081,9 +1120,10 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
     const bool stale = dirty_[v] >= kDirtyStale;
     // With a deviation charge, an edge's cost also changes when a neighbour is touched:
     // only then do v's costs not stay while v is untouched.
+    // So do they when a neighbour's degree fell to kMaxCollapseDegree (a new option).
     // Its smallest edge cost (or lower bound) when it was left stale, kept in
     // best_cost_, is another such floor, for this vertex alone.
-    if (stale && cut && !touched_[v] && !(charged && dirty_[v] == kDirtyStaleNearTouched) &&
+    if (stale && cut && !touched_[v] && !((charged || near_degree_fell) && dirty_[v] == kDirtyStaleNearTouched) &&
         (keep_stale || cut->cost < best_cost_[v]))
       return;
     dirty_[v] = 1;
@@ -1107,6 +1147,7 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
   }
   for (const Scratch& s : scratch) {
     refreshes_ += s.refreshed;
+    scanned_faces_ += s.scanned;
     frozen_refreshes_ += s.frozen;
   }
   bests_exact_ = !cut;

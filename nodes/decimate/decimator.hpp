@@ -98,6 +98,14 @@ inline constexpr int kBestRadius = 2;
 // PatchDecimator::prepare_owned_summary_round's rings around the owned part: 3 are read
 // (an owned candidate's endpoints' 1-ring neighbours' partners' bests), 2 to spare.
 inline constexpr int kOwnedSummaryRadius = 5;
+// An edge at a vertex with more live faces than this is no collapse option (as if the
+// vertex were locked, for as long as its degree stays above). Its validity and
+// deviation charge read all of that vertex's faces, and a hub's every neighbour
+// re-reads them each round the hub is touched (always, as every collapse nearby
+// changes one of its faces): a fan of n triangles around one vertex cost O(n^2) per
+// round. Reads the vertex's own faces only (radius 0: no halo change); real meshes
+// never come near it (the shared meshes' outputs are unchanged).
+inline constexpr uint32_t kMaxCollapseDegree = 256;
 // QEMFLOW_VERIFY_CARRIED=1 (see the contract): checks carried state (here: restored
 // bests; the out-of-core pipeline also checks that every copy of a repeated vertex
 // record agrees). Read once per process.
@@ -284,6 +292,9 @@ class PatchDecimator {
   // reports and tests.
   uint64_t restored_bests() const { return restored_bests_; }
   uint64_t refreshes() const { return refreshes_; }
+  // Faces read by validity checks and deviation charges so far (both endpoints'
+  // lists): the work kMaxCollapseDegree bounds, for tests.
+  uint64_t scanned_faces() const { return scanned_faces_; }
   // Work skipped at frozen vertices (see frozen()): refreshes of their best edge, and
   // inexact candidates not owned that were under the cut but not collapsed.
   uint64_t frozen_refreshes() const { return frozen_refreshes_; }
@@ -346,7 +357,7 @@ class PatchDecimator {
   // collapse_valid of edge (v, w) at `corner` / `twin`, from falive_ when known
   // (`position`, which may be null, is then not needed), else checked and cached.
   bool edge_valid(uint32_t v, std::span<const uint32_t> corners_v, std::span<const FanEdge> fan_v,
-                  uint32_t w, uint32_t corner, uint32_t twin, const Vec3* position);
+                  uint32_t w, uint32_t corner, uint32_t twin, const Vec3* position, Scratch& s);
   void gather_faces(uint32_t v, std::vector<uint32_t>& out) const;
   Vec3 edge_position(uint32_t a, uint32_t b) const;
   EdgeKey lme_key(uint32_t v) const;
@@ -369,6 +380,9 @@ class PatchDecimator {
   // inexact candidate not owned is not collapsed. Owned untrusted vertices run as
   // before: their candidates are RoundSummary::inexact_candidates, the halo-too-small
   // signal.
+  // No edge at v is a collapse option: locked, or above kMaxCollapseDegree (v's list
+  // compact, as in prepare's refreshes).
+  bool immovable(uint32_t v) const { return (vflag_[v] & kLocked) || adj_count_[v] > kMaxCollapseDegree; }
   bool frozen(uint32_t v) const { return (vflag_[v] & (kUntrusted | kOwned | kDead)) == kUntrusted; }
 
   DecimateParams params_;
@@ -412,7 +426,7 @@ class PatchDecimator {
   uint64_t locked_count_ = 0;
   uint64_t dropped_faces_ = 0;
   uint64_t untrusted_count_ = 0;
-  uint64_t restored_bests_ = 0, refreshes_ = 0;
+  uint64_t restored_bests_ = 0, refreshes_ = 0, scanned_faces_ = 0;
   uint64_t frozen_refreshes_ = 0, frozen_collapses_ = 0;
   // QEMFLOW_VERIFY_CARRIED: the vertices restore_bests restored, until the first
   // prepare checks them (empty otherwise).
