@@ -45,4 +45,9 @@ std::string format_size(uint64_t bytes) {
   return buffer;
 }
 
+std::string format_budget(uint64_t bytes) {
+  const uint64_t mib = (bytes + (1u << 20) - 1) >> 20;
+  return std::to_string(mib) + " MiB";
+}
+
 }  // namespace qemflow::config

@@ -10,5 +10,8 @@ namespace qemflow::config {
 uint64_t parse_size(std::string_view text);
 // The inverse for messages: 268435456 -> "256 MiB", 1610612736 -> "1.5 GiB".
 std::string format_size(uint64_t bytes);
+// A budget to name in a refusal: `bytes` rounded up to a whole MiB, so that what the
+// message prints (and a user types back) is never below what it stands for.
+std::string format_budget(uint64_t bytes);
 
 }  // namespace qemflow::config

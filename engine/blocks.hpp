@@ -196,6 +196,12 @@ struct LoadHooks {
   std::function<void(uint64_t first, const float* xyz, uint64_t count)> float_vertices;
 };
 
+// The least the loader holds (its reservation's minimum and the streamed items'), and a
+// check, before a Governor exists, that `budget` over `baseline` leaves it: a budget
+// below the process's footprint is refused naming this minimum, not a guess.
+uint64_t loader_minimum_bytes();
+void require_budget_for_load(uint64_t budget, uint64_t baseline);
+
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
                             const LoadOptions& options, const LoadHooks& hooks = {});
 

@@ -7,6 +7,7 @@
 
 namespace qemflow::engine {
 
+using config::format_budget;
 using config::format_size;
 
 Lease::Lease(Lease&& other) noexcept
@@ -101,7 +102,7 @@ Governor::Governor(uint64_t budget, uint64_t baseline) : budget_(budget), baseli
     throw Error(ErrorKind::resource,
                 "--mem-budget " + format_size(budget) + " is below the process's own footprint of " +
                     format_size(baseline) + "; use --mem-budget " +
-                    format_size(baseline + (16u << 20)) + " or more");
+                    format_budget(baseline + (16u << 20)) + " or more");
   }
 }
 
@@ -124,7 +125,7 @@ void Governor::require_fits(const std::string& owner, uint64_t bytes) const {
               owner + " needs " + format_size(bytes) + " of memory but --mem-budget " +
                   format_size(budget_) + " leaves " + format_size(capacity()) +
                   " after the process's own " + format_size(baseline_) +
-                  "; the minimum budget is " + format_size(bytes + baseline_));
+                  "; the minimum budget is " + format_budget(bytes + baseline_));
 }
 
 Governor::Owner* Governor::owner_record(const std::string& owner) {

@@ -452,7 +452,7 @@ class Loader {
     // left, through leases that never wait while holding anything.
     uint64_t reserve_min = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace));
     uint64_t items_min = 4 * max_input_lease;
-    job_.require_fits(job_.owner("loader"), reserve_min + items_min);
+    job_.require_fits(job_.owner("loader"), loader_minimum_bytes());
     // Sized from what is free at the grant: another job's loader starting at the same
     // moment must not count the same bytes (together they took everything, and both
     // input streams waited forever for a batch lease).
@@ -462,6 +462,19 @@ class Loader {
         [this] { return job_.stopped(); });
     job_.check();
     capacity_ = reserve_.bytes();
+    items_min_ = items_min;
+    held_outside_ = job_.governor().in_use() - std::min(job_.governor().in_use(), capacity_);
+  }
+
+  // The budget at which what the reservation holds now (`bytes` short) would be enough.
+  // What the loader's spills have taken grows with the reservation (fractions of it, at
+  // most half at any time), so the reservation grows by twice the shortfall; it is the
+  // share of the free memory above (3/4, or all but items_min_), on top of the process
+  // baseline and what other owners hold (the job's trace, another job).
+  uint64_t budget_for_shortfall(uint64_t short_bytes) const {
+    const uint64_t reservation = capacity_ + 2 * short_bytes;
+    const uint64_t free = std::max(reservation + items_min_, (reservation * 4 + 2) / 3);
+    return job_.governor().baseline() + held_outside_ + free;
   }
 
   LoadedMesh run() {
@@ -497,8 +510,8 @@ class Loader {
       throw Error(ErrorKind::resource, std::string("loader: the ") + owner + " need " + config::format_size(bytes) +
                                            " but --mem-budget " + config::format_size(budget) + " leaves them " +
                                            config::format_size(reserve_.bytes()) +
-                                           "; this needs a budget of at least about " +
-                                           config::format_size(budget + bytes - reserve_.bytes()));
+                                           "; this needs a budget of at least " +
+                                           config::format_budget(budget_for_shortfall(bytes - reserve_.bytes())));
     }
     return reserve_.split(bytes, job_.owner(owner));
   }
@@ -681,8 +694,8 @@ class Loader {
       throw Error(ErrorKind::resource, std::string("loader: ") + what + " needs " + config::format_size(bytes) +
                                            ", more than --mem-budget " + config::format_size(budget) +
                                            " leaves for it (" + config::format_size(reserve_.bytes() / 2) +
-                                           "); this needs a budget of at least about " +
-                                           config::format_size(budget + 2 * (2 * bytes - reserve_.bytes())));
+                                           "); this needs a budget of at least " +
+                                           config::format_budget(budget_for_shortfall(2 * bytes - reserve_.bytes())));
     }
   }
 
@@ -1216,7 +1229,8 @@ class Loader {
       if (bytes > reserve_.bytes()) {
         throw Error(ErrorKind::resource, "loader: a weld bucket of " + std::to_string(n) +
                                              " vertices (" + config::format_size(bytes) +
-                                             ") does not fit the memory budget");
+                                             ") does not fit the memory budget; this needs a budget of at least " +
+                                             config::format_budget(budget_for_shortfall(bytes - reserve_.bytes())));
       }
       Lease bucket_lease = take("weld bucket", bytes);
       UninitializedVector<WeldRecord> records(n);
@@ -1557,6 +1571,8 @@ class Loader {
   InputStream input_;
   Lease reserve_;  // the loader's working set; parts are split off and merged back
   uint64_t capacity_ = 0;
+  uint64_t items_min_ = 0;     // what the reservation leaves the streamed items at least
+  uint64_t held_outside_ = 0;  // what other owners held when the reservation was granted
   double progress_span_ = 0.4;
   double progress_base_ = 0;
   Lease state_lease_;  // covers weld_ and degree_ (declared first: released last)
@@ -1778,6 +1794,18 @@ void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& stor
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
                             const LoadOptions& options, const LoadHooks& hooks) {
   return Loader(job, scratch, input, options, hooks).run();
+}
+
+uint64_t loader_minimum_bytes() { return 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace)) + 4 * max_input_lease; }
+
+void require_budget_for_load(uint64_t budget, uint64_t baseline) {
+  if (budget >= baseline + loader_minimum_bytes()) return;
+  throw Error(ErrorKind::resource, "--mem-budget " + config::format_size(budget) + " leaves " +
+                                       config::format_size(budget - std::min(budget, baseline)) +
+                                       " after the process's own " + config::format_size(baseline) +
+                                       " but the loader needs " + config::format_size(loader_minimum_bytes()) +
+                                       "; the minimum budget is " +
+                                       config::format_budget(baseline + loader_minimum_bytes()));
 }
 
 }  // namespace qemflow::engine

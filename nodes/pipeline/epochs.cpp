@@ -693,6 +693,10 @@ struct PatchPart {
   uint32_t owner = 0;
   bool whole = true;
   Box region;  // when not whole
+  // Owned faces of the part it was halved from, and how many halvings in a row left
+  // all of them in one half (faces at one point: halving never frees them).
+  uint64_t parent_owned = 0;
+  uint32_t stalled = 0;
 };
 
 // Face records the part does not own carry this owner, so "owner == p" means "owned by
@@ -1432,7 +1436,9 @@ struct Runner {
       stats.gathered_faces_total += g.found_faces;
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
-        if (g.owned_faces <= kSmallestPart) refuse_part(g);
+        part.stalled = g.owned_faces == part.parent_owned ? part.stalled + 1 : 0;
+        if (g.owned_faces <= kSmallestPart || part.stalled >= kMostStalledHalvings) refuse_part(g);
+        part.parent_owned = g.owned_faces;  // for its halves
         return false;
       }
       lease.shrink_to(patch_bytes(g.found_faces, g.found_vertices()));
@@ -1487,6 +1493,9 @@ struct Runner {
   // A part this small is not split further: its patch is mostly halo, so halving it
   // would not make the patch fit.
   static constexpr uint64_t kSmallestPart = 2048;
+  // Halvings in a row that keep every owned face before a part is refused: 16 per axis
+  // shrink its region 65536 times around faces that all lie in it.
+  static constexpr uint32_t kMostStalledHalvings = 48;
 
   // The gather stops once it holds too much, so the need is a lower bound; the budget
   // named is at least the one the finish needs (finish_minimum).
@@ -1499,7 +1508,7 @@ struct Runner {
                     "-ring halo (over " + std::to_string(g.found_faces) + " faces) needs over " + config::format_size(need) +
                     " of memory but --mem-budget " + config::format_size(job.governor().budget()) +
                     " lets a patch hold " + config::format_size(patch_cap()) + "; this needs a budget of at least " +
-                    config::format_size(minimum));
+                    config::format_budget(minimum));
   }
 
   // Halves a part's region across the longest axis of what it owns.
@@ -1538,6 +1547,10 @@ struct Runner {
           continue;
         }
         auto [low, high] = halve(part);
+        for (PatchPart* half : {&low, &high}) {
+          half->parent_owned = part.parent_owned;
+          half->stalled = part.stalled;
+        }
         todo.push_back(std::move(high));
         todo.push_back(std::move(low));
         ++stats.patch_splits;
@@ -1612,6 +1625,14 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   if (partition_options.clusters == 0 && fits_in_core(mesh.kept_faces(), mesh.vertex_count)) partition_options.clusters = 1;
   const Partition partition = partition_blocks(job, scratch, mesh, partition_options);
   st.patches = partition.clusters;
+  // A surface too small to sample for two clusters (copies of one triangle) has nothing
+  // to split it by: one patch, which has to be the finish. Refused with the finish's
+  // minimum when that does not fit, rather than halving a part that cannot shrink.
+  if (partition.clusters == 1 && partition_options.clusters != 1 && !fits_in_core(mesh.kept_faces(), mesh.vertex_count)) {
+    job.require_fits("the in-core finish of " + std::to_string(mesh.kept_faces()) + " faces (their surface is too small to partition: " +
+                         std::to_string(partition.samples) + " sample)",
+                     capacity_for_finish(std::max<uint64_t>(1, in_core_finish_bytes(mesh.kept_faces(), mesh.vertex_count))));
+  }
 
   auto state = std::make_unique<MeshState>();
   state->file = scratch.create_file("state-0");

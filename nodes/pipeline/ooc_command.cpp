@@ -42,7 +42,9 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
   engine::tune_allocator();
   uint64_t budget = command.mem_budget;
   if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
-  engine::Governor governor(budget, baseline_bytes());
+  const uint64_t baseline = baseline_bytes();
+  engine::require_budget_for_load(budget, baseline);
+  engine::Governor governor(budget, baseline);
   engine::ProgressBar bar(command.quiet);
   engine::JobSettings settings;
   settings.threads = command.threads;

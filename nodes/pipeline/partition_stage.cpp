@@ -122,17 +122,26 @@ Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, cons
   samplers.clear();
   partition::SampleSet set = sampler.finish();
   sampler = partition::SurfaceSampler(sampler_options);
+  // Too little surface for the clusters the budget asked for (every face a copy of one
+  // triangle gives one sample): valid input, so as many clusters as there are samples,
+  // and none (one patch) below two; the caller decides whether one patch can run.
   if (set.samples.size() < clusters) {
-    throw Error(ErrorKind::bad_input, "partition: " + std::to_string(set.samples.size()) + " surface samples for " +
-                                          std::to_string(clusters) + " clusters (the surface is too small)");
+    result.samples = set.samples.size();
+    result.radius = set.radius;
+    if (set.samples.size() < 2) {
+      result.clusters = 1;
+      return result;
+    }
+    result.clusters = uint32_t(set.samples.size());
   }
+  const uint32_t clusters_run = result.clusters;
 
   job.arena().execute([&] {
     const partition::ProximityGraph graph = partition::build_proximity_graph(set.samples, set.radius);
-    const partition::Clustering clustering = partition::cluster_samples(set.samples, graph, {.clusters = clusters});
-    result.classifier = partition::train_plane_classifier(set.samples, clustering.labels, clusters);
+    const partition::Clustering clustering = partition::cluster_samples(set.samples, graph, {.clusters = clusters_run});
+    result.classifier = partition::train_plane_classifier(set.samples, clustering.labels, clusters_run);
     result.fcm_iterations = clustering.iterations;
-    result.samples_per_cluster.assign(clusters, 0);
+    result.samples_per_cluster.assign(clusters_run, 0);
     for (uint32_t label : clustering.labels) ++result.samples_per_cluster[label];
   });
   job.check();

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -633,6 +634,69 @@ TEST(SimplifyOoc, MixedSoupIsRefusedUpFrontAndItsNamedMinimumRuns) {
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["peak_rss_bytes"].get<double>(), minimum_mib * (1 << 20));
   expect_out_equals_in_core(dir, mesh, args);
+}
+
+// The budget a refusal names (a whole number of MiB, format_budget), or 0.
+uint64_t named_budget_mib(const std::string& out) {
+  for (const char* lead : {"budget of at least ", "the minimum budget is ", "use --mem-budget "}) {
+    const size_t at = out.find(lead);
+    if (at == std::string::npos) continue;
+    const size_t from = at + std::strlen(lead);
+    const size_t unit = out.find(" MiB", from);
+    if (unit == std::string::npos) continue;
+    return std::stoull(out.substr(from, unit - from));
+  }
+  return 0;
+}
+
+// Runs `args` on `mesh` at `budget`; on a refusal (exit 4), again at the budget it
+// names, at most `refusals` times, and that must then run. Returns the last budget named
+// (0: `budget` ran).
+uint64_t expect_named_budget_runs(const TempDir& dir, const std::filesystem::path& mesh, const std::string& args,
+                                  const std::string& budget, int refusals = 1) {
+  std::string out;
+  const auto output = dir / "out.ply";
+  const std::string command = kFixedBaseline + q() + " simplify " + mesh.string() + " " + output.string() + " " +
+                              args + " --quiet --scratch " + dir.path().string() + " --mem-budget ";
+  int rc = run_command(command + budget, &out);
+  if (rc == 0) return 0;
+  EXPECT_EQ(rc, 4) << out;
+  uint64_t named = 0;
+  for (int i = 0; i < refusals && rc == 4; ++i) {
+    named = named_budget_mib(out);
+    EXPECT_GT(named, 0u) << out;
+    rc = run_command(command + std::to_string(named) + "M", &out);
+  }
+  EXPECT_EQ(rc, 0) << "named " << named << " MiB: " << out;
+  return named;
+}
+
+// 100k copies of one triangle are valid input: at 47M the budget asked for 6 clusters
+// and the surface gave 1 sample, which was exit 3 ("the surface is too small"); with
+// --clusters 1 the one patch was halved for ever around faces at one point. Now such a
+// mesh goes in core or is refused (exit 4) naming a budget that runs.
+TEST(SimplifyOoc, CopiesOfOneTriangleAreNotBadInput) {
+  TempDir dir;
+  io::IndexedMesh copies;
+  copies.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  copies.triangles.assign(100000, Triangle{0, 1, 2});
+  const auto mesh = dir / "copies.ply";
+  io::write_mesh(mesh, copies);
+  // The loader's minimum first, then the finish's (one more refusal).
+  EXPECT_GT(expect_named_budget_runs(dir, mesh, "--ratio 0.01", "47M", 2), 0u);
+  expect_named_budget_runs(dir, mesh, "--ratio 0.01 --clusters 1", "47M", 2);
+}
+
+// The first refusal of a budget far too small names one at which the run goes through
+// (it named the loader's own minimum, then each later stage's shortfall in turn: seven
+// tries on the 1M blob, some at a printed budget rounded below the one meant).
+TEST(SimplifyOoc, TheFirstRefusalNamesABudgetThatRuns) {
+  TempDir dir;
+  for (const char* gen : {"--faces 200000", "--faces 200000 --shuffle 3"}) {
+    SCOPED_TRACE(gen);
+    const auto mesh = generate(dir, gen);
+    EXPECT_GT(expect_named_budget_runs(dir, mesh, "--ratio 0.01", "1M"), 0u);
+  }
 }
 
 // Over-limit decisions and every gather count come from the chunk metas before a
