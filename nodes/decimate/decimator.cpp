@@ -250,7 +250,9 @@ void renumber_for_locality(PatchInput& in) {
     by_first[f] = uint64_t{std::min({t[0], t[1], t[2]})} << 32 | f;
   }
   release_memory(new_of);
-  radix_sort_by_key(by_first, [](uint64_t x) { return x; });
+  // The low half (the old index) is ascending already: sorting stably by the high half
+  // alone gives the same order in 2 radix passes instead of 4-5.
+  radix_sort_by_key(by_first, [](uint64_t x) { return x >> 32; });
   std::vector<uint32_t> face_from(nf);
   for (size_t i = 0; i < nf; ++i) face_from[i] = static_cast<uint32_t>(by_first[i]);
   release_memory(by_first);

@@ -282,6 +282,15 @@ class UniqueVertexRecords {
       if (records_[slots_[at]].gid == gid) return slots_[at];
     return kMissing;
   }
+  // Lookups are cache misses (a random slot, then a random 136-byte record): a caller
+  // looking up many gids prefetches each gid's slot some lookups ahead (prefetch_slot),
+  // then, once that slot has arrived, its record (prefetch_record), so the misses of
+  // consecutive lookups overlap instead of following one another.
+  void prefetch_slot(uint64_t gid) const { __builtin_prefetch(&slots_[slot_of(gid)]); }
+  void prefetch_record(uint64_t gid) const {
+    const uint32_t i = slots_[slot_of(gid)];
+    if (i != kMissing) __builtin_prefetch(&records_[i].gid);
+  }
   void release() { release_memory(slots_); }
 
  private:
@@ -841,7 +850,12 @@ void gather_blob(const BlobView& v, const PatchPart& part, Gathered& g, UniqueVe
   for (uint64_t i = 0; i < v.faces; ++i) g.owned_faces += v.face[i].owner == part.owner;
   if (g.over_limit) return;
   g.faces.insert(g.faces.end(), v.face, v.face + v.faces);
-  for (uint64_t i = 0; i < v.vertices; ++i) unique_vertices.add(v.vertex[i]);
+  constexpr uint64_t kSlotsAhead = 16, kRecordsAhead = 8;
+  for (uint64_t i = 0; i < v.vertices; ++i) {
+    if (i + kSlotsAhead < v.vertices) unique_vertices.prefetch_slot(v.vertex[i + kSlotsAhead].gid);
+    if (i + kRecordsAhead < v.vertices) unique_vertices.prefetch_record(v.vertex[i + kRecordsAhead].gid);
+    unique_vertices.add(v.vertex[i]);
+  }
 }
 
 // The faces and vertex shares of a batch of runs, from the chunk metas.
@@ -927,6 +941,8 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
         std::vector<uint8_t> used(v.vertices, 0);
         std::array<std::vector<FaceRecord>, ChunkMeta::kParts> kept;
         const RunMask wanted = RunMask(runs | to_cache);
+        for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+          if (wanted >> k & 1u) kept[k].reserve(run_faces(v.faces, k));
         for (uint64_t j = 0; j < v.faces; ++j) {
           const size_t k = ChunkMeta::part_of(j, v.faces);
           if (!(wanted >> k & 1u)) continue;
@@ -945,14 +961,28 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
           used[c] |= RunMask(1u << k);
         }
         // The asked runs as one blob (replacing the records), each cached run as its own.
+        // Written in place (make_blob's layout): staging the records in vectors first
+        // copied each twice more, with the vectors' growth.
         auto blob_of = [&](RunMask mask) {
-          std::vector<FaceRecord> faces;
+          uint64_t nf = 0, nv = 0;
           for (size_t k = 0; k < ChunkMeta::kParts; ++k)
-            if (mask >> k & 1u) faces.insert(faces.end(), kept[k].begin(), kept[k].end());
-          std::vector<VertexRecord> verts;
+            if (mask >> k & 1u) nf += kept[k].size();
+          for (uint64_t i = 0; i < v.vertices; ++i) nv += (used[i] & mask) != 0;
+          Bytes blob(blob_bytes(nf, nv));
+          std::memcpy(blob.data(), &nf, 8);
+          std::memcpy(blob.data() + 8, &nv, 8);
+          std::byte* at = blob.data() + 16;
+          for (size_t k = 0; k < ChunkMeta::kParts; ++k)
+            if ((mask >> k & 1u) && !kept[k].empty()) {
+              std::memcpy(at, kept[k].data(), kept[k].size() * sizeof(FaceRecord));
+              at += kept[k].size() * sizeof(FaceRecord);
+            }
           for (uint64_t i = 0; i < v.vertices; ++i)
-            if (used[i] & mask) verts.push_back(v.vertex[i]);
-          return make_blob(faces, verts);
+            if (used[i] & mask) {
+              std::memcpy(at, &v.vertex[i], sizeof(VertexRecord));
+              at += sizeof(VertexRecord);
+            }
+          return blob;
         };
         std::array<Bytes, ChunkMeta::kParts> cached;
         for (size_t k = 0; k < ChunkMeta::kParts; ++k)
@@ -1065,7 +1095,12 @@ class PatchBfs {
     local_.resize(nf);
     std::atomic<bool> missing = false;
     tbb::parallel_for(tbb::blocked_range<size_t>(first, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
-      for (size_t f = range.begin(); f < range.end(); ++f)
+      constexpr size_t kSlotsAhead = 16, kRecordsAhead = 8;
+      for (size_t f = range.begin(); f < range.end(); ++f) {
+        if (f + kSlotsAhead < range.end())
+          for (uint64_t gid : g.faces[f + kSlotsAhead].v) ids.prefetch_slot(gid);
+        if (f + kRecordsAhead < range.end())
+          for (uint64_t gid : g.faces[f + kRecordsAhead].v) ids.prefetch_record(gid);
         for (int k = 0; k < 3; ++k) {
           const uint32_t v = ids.find(g.faces[f].v[k]);
           if (v == UniqueVertexRecords::kMissing) {
@@ -1074,6 +1109,7 @@ class PatchBfs {
           }
           local_[f][k] = v;
         }
+      }
     });
     if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
     next_.resize(3 * nf);
@@ -1173,7 +1209,15 @@ class PatchBfs {
       in.best_gids.reserve(kept_v);
       in.best_costs.reserve(kept_v);
     }
-    for (const auto& [gid, v] : vorder) {
+    // vorder visits the records at random: each is prefetched some visits ahead.
+    constexpr size_t kAhead = 8;
+    for (size_t i = 0; i < vorder.size(); ++i) {
+      if (i + kAhead < vorder.size()) {
+        const std::byte* ahead = reinterpret_cast<const std::byte*>(vb + vorder[i + kAhead].second);
+        for (size_t at = 0; at < sizeof(VertexRecord); at += 64) __builtin_prefetch(ahead + at);
+        __builtin_prefetch(ahead + sizeof(VertexRecord) - 1);
+      }
+      const uint32_t v = vorder[i].second;
       const VertexRecord& r = vb[v];
       new_index[v] = uint32_t(in.vertex_gids.size());
       append_vertex(in, r, given_quadrics, carried, fuzz);
@@ -1577,8 +1621,10 @@ struct Runner {
                             keyed[f] = {morton(c, box), uint32_t(f)};
                           }
                         });
-      tbb::parallel_sort(keyed.begin(), keyed.end());  // keys unique: any thread count, one order
     });
+    // (code, face) pairs are unique and the faces ascending: the stable radix sort by code
+    // gives std::sort's order of the pairs.
+    radix_sort_by_key(keyed, [](const std::pair<uint32_t, uint32_t>& x) { return uint64_t{x.first}; });
     std::vector<uint32_t> order(keyed.size());
     for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
     release_memory(keyed);
