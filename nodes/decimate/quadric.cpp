@@ -91,8 +91,8 @@ Vec3 collapse_position(const Quadric& Q, const Vec3& lo, const Vec3& hi) {
 namespace {
 
 // point_triangle_distance2 given the edge vectors ab = b - a and ac = c - a (the call
-// was a sixth of its cost when inlined). FanDeviation::add computes the same values
-// without branches.
+// was a sixth of its cost when inlined). FanDeviation's kernel (fan_kernel.inc)
+// computes the same values without branches.
 [[gnu::always_inline]] inline double distance2_with_edges(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c,
                                    const Vec3& ab, const Vec3& ac) {
   // Ericson, Real-Time Collision Detection 5.1.5: the Voronoi region of x decides
@@ -133,74 +133,10 @@ double point_triangle_distance2(const Vec3& x, const Vec3& a, const Vec3& b, con
   return distance2_with_edges(x, a, b, c, sub(b, a), sub(c, a));
 }
 
-namespace {
-
-// Two doubles, one per point of FanDeviation (lane 0: a, lane 1: b). GCC's vector
-// arithmetic is lane-wise IEEE: each lane gets the bits of the scalar expression
-// written the same way (the same operations in the same order; x86-64 has no fused
-// multiply-add to contract into without -march).
-typedef double Lanes __attribute__((vector_size(16)));
-typedef long long Mask __attribute__((vector_size(16)));  // a comparison's lanes: -1 or 0
-
-Lanes splat(double x) { return Lanes{x, x}; }
-Lanes pick(Mask m, Lanes if_set, Lanes otherwise) { return m ? if_set : otherwise; }
-
-struct Points {  // one Vec3 per lane
-  Lanes c[3];
-};
-Points splat(const Vec3& p) { return {{splat(p[0]), splat(p[1]), splat(p[2])}}; }
-Points minus(const Points& x, const Points& y) {
-  return {{x.c[0] - y.c[0], x.c[1] - y.c[1], x.c[2] - y.c[2]}};
-}
-Lanes dot(const Points& x, const Points& y) { return x.c[0] * y.c[0] + x.c[1] * y.c[1] + x.c[2] * y.c[2]; }
-// distance2_with_edges' at(o, u, s, v, t): o + s * u + t * v, per coordinate.
-Points at(const Points& o, const Points& u, Lanes s, const Points& v, Lanes t) {
-  return {{o.c[0] + s * u.c[0] + t * v.c[0], o.c[1] + s * u.c[1] + t * v.c[1],
-           o.c[2] + s * u.c[2] + t * v.c[2]}};
-}
-
-}  // namespace
-
-void FanDeviation::add(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
-  // distance2_with_edges for both points at once, without branches: its regions are
-  // equally likely here, so its branches were mispredicted about half the time. Every
-  // region's distance is computed (the same expressions on the same values as there),
-  // and each lane keeps the one of the first region whose test holds, in that function's
-  // order: bit for bit its result (tests/nodes/decimate_kernels_test.cpp).
-  const Points x{{Lanes{a_[0], b_[0]}, Lanes{a_[1], b_[1]}, Lanes{a_[2], b_[2]}}};
-  const Points a = splat(p0), b = splat(p1), c = splat(p2);
-  const Points ab = splat(sub(p1, p0)), ac = splat(sub(p2, p0)), bc = splat(sub(p2, p1));
-  const Points ax = minus(x, a), bx = minus(x, b), cx = minus(x, c);
-  const Lanes d1 = dot(ab, ax), d2 = dot(ac, ax);
-  const Lanes d3 = dot(ab, bx), d4 = dot(ac, bx);
-  const Lanes d5 = dot(ab, cx), d6 = dot(ac, cx);
-  const Lanes vc = d1 * d4 - d3 * d2, vb = d5 * d2 - d1 * d6, va = d3 * d6 - d5 * d4;
-  const Lanes zero = splat(0.0);
-  auto dist2 = [&](const Points& y) {
-    const Points d = minus(x, y);
-    return dot(d, d);
-  };
-  const Lanes to_a = dist2(a), to_b = dist2(b), to_c = dist2(c);
-  const Lanes sum = va + vb + vc;
-  Lanes nearest_of_three = pick(to_b < to_a, to_b, to_a);  // std::min({a, b, c})
-  nearest_of_three = pick(to_c < nearest_of_three, to_c, nearest_of_three);
-  Lanes r = dist2(at(a, ab, vb / sum, ac, vc / sum));  // the face
-  r = pick(~(sum > zero), nearest_of_three, r);      // degenerate
-  r = pick((va <= zero) & ((d4 - d3) >= zero) & ((d5 - d6) >= zero),
-           dist2(at(b, bc, (d4 - d3) / ((d4 - d3) + (d5 - d6)), bc, zero)), r);
-  r = pick((vb <= zero) & (d2 >= zero) & (d6 <= zero), dist2(at(a, ab, zero, ac, d2 / (d2 - d6))), r);
-  r = pick((d6 >= zero) & (d5 <= d6), to_c, r);
-  r = pick((vc <= zero) & (d1 >= zero) & (d3 <= zero), dist2(at(a, ab, d1 / (d1 - d3), ac, zero)), r);
-  r = pick((d3 >= zero) & (d4 <= d3), to_b, r);
-  r = pick((d1 <= zero) & (d2 <= zero), to_a, r);
-  nearest_a_ = std::min(nearest_a_, r[0]);  // std::min: a NaN distance is never kept
-  nearest_b_ = std::min(nearest_b_, r[1]);
-  empty_ = false;
-}
-
-double FanDeviation::charge(double area_a, double area_b) const {
+double FanDeviation::charge(double area_a, double area_b) {
+  if (pending_ > 0) flush();
   if (empty_) return 0.0;
-  return area_a / 3.0 * nearest_a_ + area_b / 3.0 * nearest_b_;
+  return area_a / 3.0 * nearest_[0] + area_b / 3.0 * nearest_[1];
 }
 
 double collapse_deviation(const Vec3& a, double area_a, const Vec3& b, double area_b,

@@ -64,18 +64,42 @@ double collapse_deviation(const Vec3& a, double area_a, const Vec3& b, double ar
 // collapse_deviation fed one triangle at a time, so a caller walking its mesh needs no
 // copy of the fan. Each triangle's two distances are point_triangle_distance2's bits
 // (its edge vectors are shared by both points, the same differences either way); the
-// nearest distances are minima, so the order of the triangles does not matter.
+// nearest distances are minima, so the order of the triangles does not matter. The
+// triangles are buffered and measured kFanBlock at a time by a kernel compiled for the
+// widest vector unit the CPU has (fan_kernel.cpp): every version gives the same bits.
+inline constexpr int kFanBlock = 4;
+// Row 3 * i + c: coordinate c of vertex i of each buffered triangle k, twice (lanes
+// 2k and 2k + 1, where the kernel measures the distances of a and of b).
+using FanRows = double[9][2 * kFanBlock];
+
 class FanDeviation {
  public:
   FanDeviation(const Vec3& a, const Vec3& b) : a_(a), b_(b) {}
-  void add(const Vec3& p0, const Vec3& p1, const Vec3& p2);
+  // Inline: only copies (the arithmetic is in the kernel, compiled once).
+  void add(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
+    const Vec3* p[3] = {&p0, &p1, &p2};
+    for (int i = 0; i < 3; ++i)
+      for (int c = 0; c < 3; ++c) rows_[3 * i + c][2 * pending_] = rows_[3 * i + c][2 * pending_ + 1] = (*p[i])[c];
+    if (++pending_ == kFanBlock) flush();
+  }
   // collapse_deviation(a, area_a, b, area_b, the triangles added).
-  double charge(double area_a, double area_b) const;
+  double charge(double area_a, double area_b);
 
  private:
+  void flush();
+  alignas(64) FanRows rows_;
   Vec3 a_, b_;
-  double nearest_a_ = std::numeric_limits<double>::infinity(), nearest_b_ = nearest_a_;
+  double nearest_[2] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+  int pending_ = 0;
   bool empty_ = true;
 };
+
+// The versions of FanDeviation's kernel, one per instruction set (same bits). The
+// widest one the CPU runs is used, unless QEMFLOW_FAN_KERNEL (sse2, avx2, avx512)
+// names another one it runs.
+enum class FanKernel { kSse2, kAvx2, kAvx512 };
+FanKernel fan_kernel();
+// Testing: use `kernel` from now on; false (nothing changes) when the CPU lacks it.
+bool use_fan_kernel(FanKernel kernel);
 
 }  // namespace qemflow::nodes
