@@ -15,6 +15,7 @@
 #include "engine/process_memory.hpp"
 #include "engine/spill.hpp"
 #include "engine/stream_pass.hpp"
+#include "io/byte_source.hpp"
 #include "io/mesh_file_kind.hpp"
 #include "io/mesh_stream.hpp"
 #include "io/ply_bulk.hpp"
@@ -196,6 +197,13 @@ uint32_t block_count_for(uint64_t faces, uint64_t faces_per_block) {
   return uint32_t(std::clamp<uint64_t>(blocks, 1, 4096));
 }
 
+// What a .zst input's decoder needs beyond the window every run already counts in the
+// governor's baseline margin (io/byte_source.hpp; the shared meshes' tests at 40-60M
+// run with such windows unleased); 0 for other inputs.
+uint64_t input_window_bytes(const std::filesystem::path& input) {
+  return io::mesh_file_kind(input).zstd ? io::zstd_decoder_bytes_to_reserve(input) : 0;
+}
+
 // One input batch on its way through the load pass.
 struct InputItem {
   io::RawChunk raw;                                       // bulk input: the bytes as read
@@ -260,6 +268,7 @@ struct InputStream {
   std::filesystem::path path;
   uint64_t size = 0;
   void open() {
+    close();  // one decoder (and its window) at a time
     carried.reset();
     vertices_done = false;
     bulk = io::open_ply_bulk_reader(path);
@@ -443,6 +452,18 @@ class Loader {
          const LoadOptions& options, const LoadHooks& hooks)
       : job_(job), scratch_(scratch), options_(options), hooks_(hooks) {
     input_.path = input;
+    // A .zst input's decoder window beyond what every run counts (io/byte_source.hpp)
+    // is held for as long as the input may be read: `zstd --long=27` (128 MiB) unleased
+    // took a 3M-face re-encode at 50M to 70 MiB.
+    const uint64_t window_bytes = input_window_bytes(input);
+    const uint64_t reserve_min = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace));
+    const uint64_t items_min = 4 * max_input_lease;
+    job_.require_fits(job_.owner("loader"), loader_minimum_bytes() + window_bytes);
+    if (window_bytes > 0) {
+      window_ = job_.governor().acquire(job_.owner("input window"), window_bytes, window_bytes,
+                                        [this] { return job_.stopped(); });
+      job_.check();
+    }
     job_.io().call("open input", [&] { input_.open(); });
     input_.size = input_.info().file_size;
     // One reservation for everything the loader holds for a whole pass (spills,
@@ -450,9 +471,6 @@ class Loader {
     // never holds part of its working set while waiting for the rest, so jobs sharing
     // a governor cannot deadlock. Streamed items (batches, frames) come from what is
     // left, through leases that never wait while holding anything.
-    uint64_t reserve_min = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace));
-    uint64_t items_min = 4 * max_input_lease;
-    job_.require_fits(job_.owner("loader"), loader_minimum_bytes());
     // Sized from what is free at the grant: another job's loader starting at the same
     // moment must not count the same bytes (together they took everything, and both
     // input streams waited forever for a batch lease).
@@ -1569,6 +1587,7 @@ class Loader {
   LoadOptions options_;
   LoadHooks hooks_;
   InputStream input_;
+  Lease window_;   // a .zst input's decoder window, when larger than zstd_window_allowance
   Lease reserve_;  // the loader's working set; parts are split off and merged back
   uint64_t capacity_ = 0;
   uint64_t items_min_ = 0;     // what the reservation leaves the streamed items at least

@@ -3,10 +3,13 @@
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#define ZSTD_STATIC_LINKING_ONLY  // frame headers and decoder size estimates
 #include <zstd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <optional>
 
 #include "util/error.hpp"
 
@@ -20,6 +23,43 @@ struct ByteSource::Zstd {
   bool file_done = false;
   ~Zstd() { ZSTD_freeDStream(stream); }
 };
+
+namespace {
+
+// The header of the first frame of the zstd file open at `fd`, read with pread (the
+// file position is left alone); nullopt when there is none to read.
+std::optional<ZSTD_frameHeader> first_frame_header(int fd, std::vector<char>& header) {
+  header.resize(ZSTD_FRAMEHEADERSIZE_MAX);
+  ssize_t got;
+  do got = ::pread(fd, header.data(), header.size(), 0);
+  while (got < 0 && errno == EINTR);
+  header.resize(got < 0 ? 0 : size_t(got));
+  ZSTD_frameHeader frame{};
+  if (ZSTD_getFrameHeader(&frame, header.data(), header.size()) != 0 || frame.frameType != ZSTD_frame) {
+    return std::nullopt;
+  }
+  return frame;
+}
+
+int window_log(uint64_t window) {
+  int log = ZSTD_WINDOWLOG_MIN;
+  while ((uint64_t{1} << log) < window) ++log;
+  return log;
+}
+
+}  // namespace
+
+uint64_t zstd_decoder_bytes_to_reserve(const std::filesystem::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return 0;
+  std::vector<char> header;
+  const auto frame = first_frame_header(fd, header);
+  ::close(fd);
+  if (!frame) return 0;
+  const size_t bytes = ZSTD_estimateDStreamSize_fromFrame(header.data(), header.size());
+  const size_t counted = ZSTD_estimateDStreamSize(zstd_window_allowance);
+  return ZSTD_isError(bytes) || bytes <= counted ? 0 : bytes - counted;
+}
 
 ByteSource::ByteSource(const std::filesystem::path& path, bool zstd, size_t buffer_size)
     : name_(path.string()), buffer_(buffer_size < 4096 ? 4096 : buffer_size) {
@@ -38,6 +78,13 @@ ByteSource::ByteSource(const std::filesystem::path& path, bool zstd, size_t buff
     zstd_ = std::make_unique<Zstd>();
     zstd_->stream = ZSTD_createDStream();
     if (!zstd_->stream) throw Error(ErrorKind::resource, name_ + ": cannot create zstd stream");
+    // The decoder may allocate no larger a window than the first frame's (what
+    // zstd_decoder_bytes told the caller to reserve), or the allowance every caller
+    // already counts: a later frame, or a corrupt header, cannot allocate past them.
+    std::vector<char> header;
+    const auto frame = first_frame_header(fd_, header);
+    const int log = std::max(window_log(zstd_window_allowance), frame ? window_log(frame->windowSize) : 0);
+    ZSTD_DCtx_setParameter(zstd_->stream, ZSTD_d_windowLogMax, std::min(log, ZSTD_WINDOWLOG_MAX));
     zstd_->input.resize(size_t{1} << 20);
     zstd_->in = {zstd_->input.data(), 0, 0};
   }

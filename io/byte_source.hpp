@@ -15,6 +15,19 @@
 
 namespace qemflow::io {
 
+// A .zst input's decoder holds its frames' window (up to 2 GiB; `zstd --long=27`
+// makes 128 MiB) beside ByteSource's buffers. Windows up to zstd_window_allowance (every
+// zstd level up to -19 chooses windowLog 23 or less) are the caller's own overhead to
+// count; zstd_decoder_bytes_to_reserve(path) is what the decoder of the file's first
+// frame needs beyond that (ZSTD_estimateDStreamSize_fromFrame, less the same estimate
+// for the allowance): 0 for a small window, or a file with no zstd frame header to
+// read. The caller reserves it before it reads. A ByteSource refuses (corrupted zstd
+// data, "Frame requires too much memory") a frame whose window is larger than both
+// the first frame's and the allowance, so neither a later frame nor a lying header
+// allocates past the reservation.
+inline constexpr uint64_t zstd_window_allowance = uint64_t{8} << 20;
+uint64_t zstd_decoder_bytes_to_reserve(const std::filesystem::path& path);
+
 class ByteSource {
  public:
   static constexpr size_t default_buffer_size = size_t{4} << 20;
@@ -30,6 +43,7 @@ class ByteSource {
   // Makes at least `n` bytes available; false if the stream ends first (then every
   // remaining byte is available).
   bool fill(size_t n) { return available() >= n || refill(n); }
+  // Never moves bytes: what data() showed stays in place until the next fill().
   void consume(size_t n) { begin_ += n; }
   // True once every byte of the stream has been consumed.
   bool at_end() { return !fill(1); }

@@ -51,7 +51,9 @@ class MeshReader {
   virtual ~MeshReader() = default;
   virtual const MeshInfo& info() const = 0;
   // Fills `batch` with up to about `max_elements` vertices plus triangles (a
-  // polygon's fan is never split, so a batch may exceed it by a few triangles);
+  // polygon's fan may be cut between batches, so a polygon of millions of vertices
+  // costs no more than a batch; a batch may exceed it by a polygon of fewer than
+  // ply_binary::streamed_polygon_vertices, read whole);
   // returns false once the stream is exhausted (batch then empty). Every index is
   // checked (< vertex count, PLY; already defined, OBJ), every coordinate finite.
   // Throws Error(bad_input) naming file, byte offset or line, and problem.

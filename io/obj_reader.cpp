@@ -7,6 +7,7 @@
 #include <string_view>
 
 #include "io/byte_source.hpp"
+#include "io/polygon_fan.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::io {
@@ -33,8 +34,9 @@ class ObjReader final : public MeshReader {
     batch.first_vertex = vertex_count_;
     batch.first_triangle = triangle_count_;
     size_t budget = max_elements == 0 ? 1 : max_elements;
+    if (!face_rest_.empty() || fan_.seen > 0) face(batch, budget);
     std::string_view line;
-    while (batch.vertices.size() + batch.triangles.size() < budget && next_line(line)) {
+    while (batch.vertices.size() + batch.triangles.size() < budget && fan_.seen == 0 && next_line(line)) {
       size_t i = 0;
       while (i < line.size() && is_blank(line[i])) ++i;
       line.remove_prefix(i);
@@ -43,11 +45,8 @@ class ObjReader final : public MeshReader {
         batch.vertices.push_back(parse_vertex(line.substr(2)));
         ++vertex_count_;
       } else if (line[0] == 'f') {
-        parse_face(line.substr(2));
-        for (size_t k = 1; k + 1 < polygon_.size(); ++k) {
-          batch.triangles.push_back({polygon_[0], polygon_[k], polygon_[k + 1]});
-        }
-        triangle_count_ += polygon_.size() - 2;
+        face_rest_ = line.substr(2);
+        face(batch, budget);
       }
     }
     return !batch.vertices.empty() || !batch.triangles.empty();
@@ -115,11 +114,16 @@ class ObjReader final : public MeshReader {
     return point;
   }
 
-  void parse_face(std::string_view rest) {
-    polygon_.clear();
+  // Reads the face in face_rest_, its triangles going into the batch until it is full;
+  // a face cut there stays in face_rest_ and fan_ for the next batch. face_rest_ views
+  // the source's buffer, which keeps it: no fill() runs until the face is done.
+  void face(MeshBatch& batch, size_t budget) {
     for (;;) {
+      std::string_view rest = face_rest_;
       std::string_view word = next_word(rest);
       if (word.empty()) break;
+      if (batch.vertices.size() + batch.triangles.size() >= budget) return;
+      face_rest_ = rest;
       // v, v/vt, v//vn, v/vt/vn: only the part before the first slash matters.
       std::string_view number = word.substr(0, word.find('/'));
       int64_t index = 0;
@@ -133,12 +137,17 @@ class ObjReader final : public MeshReader {
         fail("face " + std::to_string(face_count_) + " has vertex index " + std::to_string(index) +
              " but only " + std::to_string(vertex_count_) + " vertices are defined before it");
       }
-      polygon_.push_back(static_cast<uint64_t>(resolved));
+      fan_.add(static_cast<uint64_t>(resolved), [&](uint64_t a, uint64_t b, uint64_t c) {
+        batch.triangles.push_back({a, b, c});
+        ++triangle_count_;
+      });
     }
-    if (polygon_.size() < 3) {
-      fail("face " + std::to_string(face_count_) + " has " + std::to_string(polygon_.size()) +
+    if (fan_.seen < 3) {
+      fail("face " + std::to_string(face_count_) + " has " + std::to_string(fan_.seen) +
            " vertices (a face needs at least 3)");
     }
+    face_rest_ = {};
+    fan_.reset();
     ++face_count_;
   }
 
@@ -148,7 +157,8 @@ class ObjReader final : public MeshReader {
   uint64_t vertex_count_ = 0;
   uint64_t triangle_count_ = 0;
   uint64_t face_count_ = 0;
-  std::vector<uint64_t> polygon_;
+  std::string_view face_rest_;  // the unread part of a face cut by a batch's end
+  PolygonFan fan_;
 };
 
 }  // namespace

@@ -16,6 +16,13 @@ namespace qemflow::io::ply_binary {
 // rather than a polygon anyone meant to write.
 constexpr size_t max_record_bytes = size_t{1} << 26;
 
+// A binary face record that is only a list of at least this many indices is read as a
+// stream (io/polygon_fan.hpp): its triangles leave in bounded batches and the record
+// is never held whole. Its indices are checked as they arrive, so a bad index is named
+// before a truncation later in the record. Below this (every "list uchar ..." record),
+// a record is read whole, as it always was.
+constexpr int64_t streamed_polygon_vertices = 256;
+
 // The whitespace of an ASCII PLY's body, and all that may follow a PLY's last element.
 inline bool is_space(char c) { return c == ' ' || c == '\n' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
 

@@ -10,6 +10,7 @@
 #include "io/byte_source.hpp"
 #include "io/mesh_file_kind.hpp"
 #include "io/ply_binary.hpp"
+#include "io/polygon_fan.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::io {
@@ -203,6 +204,12 @@ size_t PlyBulkReader::face_record(const char* record, size_t left, uint64_t offs
       throw_bad_input(name_, byte_place(offset),
                       face_name() + " has an implausible " + std::to_string(count) + " vertices");
     }
+    if (count >= streamed_polygon_vertices) {  // decode_faces reads its indices as they come
+      polygon_left_ = uint64_t(count);
+      polygon_offset_ = offset;
+      polygon_length_ = length;
+      return count_size;
+    }
   } else {
     length = record_length<Swap>(element, record, left, needed, &list_offset, header_.index_property,
                                  [&](const std::string& problem) {
@@ -221,20 +228,50 @@ size_t PlyBulkReader::face_record(const char* record, size_t left, uint64_t offs
                     face_name() + " has " + std::to_string(count) + " vertices (a face needs at least 3)");
   }
   const char* indices = record + list_offset + count_size;
-  polygon_.resize(size_t(count));
   for (int64_t i = 0; i < count; ++i) {
     int64_t index = load_integer<Swap>(list.type, indices + i * index_size);
-    if (index < 0 || uint64_t(index) >= vertex_count_) {
-      throw_bad_input(name_, byte_place(offset),
-                      face_name() + " has vertex index " + std::to_string(index) + " but the file has " +
-                          std::to_string(vertex_count_) + " vertices");
-    }
-    polygon_[size_t(i)] = uint64_t(index);
+    if (index < 0 || uint64_t(index) >= vertex_count_) bad_index(index, offset);
   }
-  if (out.size() < used + polygon_.size()) out.resize(2 * out.size() + polygon_.size());
-  for (size_t i = 1; i + 1 < polygon_.size(); ++i) out.set(used++, polygon_[0], polygon_[i], polygon_[i + 1]);
+  if (out.size() < used + size_t(count)) out.resize(2 * out.size() + size_t(count));
+  PolygonFan fan;
+  for (int64_t i = 0; i < count; ++i) {
+    fan.add(uint64_t(load_integer<Swap>(list.type, indices + i * index_size)),
+            [&](uint64_t a, uint64_t b, uint64_t c) { out.set(used++, a, b, c); });
+  }
   ++faces_done_;
   return length;
+}
+
+void PlyBulkReader::bad_index(int64_t index, uint64_t offset) const {
+  throw_bad_input(name_, byte_place(offset),
+                  "face " + std::to_string(faces_done_) + " has vertex index " + std::to_string(index) +
+                      " but the file has " + std::to_string(vertex_count_) + " vertices");
+}
+
+// `count` whole indices of the streamed polygon at p, its triangles appended at out[used...].
+template <bool Swap, class Out>
+void PlyBulkReader::polygon_indices(const char* p, size_t count, Out& out, size_t& used) {
+  const PlyElement& element = header_.elements[*header_.face_element];
+  const PlyType type = element.properties[header_.index_property].type;
+  const size_t index_size = size_of(type);
+  if (out.size() < used + count) out.resize(std::max(used + count, out.size() + out.size() / 2));
+  for (size_t i = 0; i < count; ++i) {
+    int64_t index = load_integer<Swap>(type, p + i * index_size);
+    if (index < 0 || uint64_t(index) >= vertex_count_) bad_index(index, polygon_offset_);
+    fan_.add(uint64_t(index), [&](uint64_t a, uint64_t b, uint64_t c) { out.set(used++, a, b, c); });
+  }
+  polygon_left_ -= count;
+  if (polygon_left_ == 0) {
+    fan_.reset();
+    ++faces_done_;
+  }
+}
+
+void PlyBulkReader::truncated_polygon(size_t found_after) const {
+  const PlyElement& element = header_.elements[*header_.face_element];
+  const size_t index_size = size_of(element.properties[header_.index_property].type);
+  truncated(element.name, element.count, faces_done_, polygon_offset_, polygon_length_,
+            polygon_length_ - polygon_left_ * index_size + found_after);
 }
 
 template <bool Swap, class Out>
@@ -253,6 +290,19 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, uint64_t& first_triangle
   size_t pos = 0;
   size_t needed = 0;
   auto finish = [&] { out.resize(used); triangles_done_ += used; };
+  const size_t index_size = size_of(list.type);
+  // A streamed polygon whose index was cut by the previous range's end: that index first.
+  if (polygon_left_ > 0 && !carry_.empty()) {
+    const size_t take = std::min(index_size - carry_.size(), chunk.size);
+    carry_.insert(carry_.end(), p, p + take);
+    pos = take;
+    if (carry_.size() < index_size) {
+      if (chunk.last) truncated_polygon(carry_.size());
+      return finish();
+    }
+    polygon_indices<Swap>(carry_.data(), 1, out, used);
+    carry_.clear();
+  }
   // A record cut by the end of the previous range: completed from this one.
   while (!carry_.empty() && faces_done_ < face_count_) {
     if (face_record<Swap>(carry_.data(), carry_.size(), carry_offset_, needed, out, used) > 0) {
@@ -268,6 +318,17 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, uint64_t& first_triangle
     pos += take;
   }
   while (faces_done_ < face_count_ && pos < chunk.size) {
+    if (polygon_left_ > 0) {
+      const size_t fit = size_t(std::min<uint64_t>(polygon_left_, (chunk.size - pos) / index_size));
+      if (fit == 0) {  // an index cut by the range's end
+        carry_.assign(p + pos, p + chunk.size);
+        pos = chunk.size;
+        break;
+      }
+      polygon_indices<Swap>(p + pos, fit, out, used);
+      pos += fit * index_size;
+      continue;
+    }
     if (fast) {
       // "list uchar int" triangles: a fixed stride while the count byte says 3.
       size_t limit = size_t(std::min<uint64_t>(face_count_ - faces_done_, (chunk.size - pos) / 13));
@@ -305,6 +366,7 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, uint64_t& first_triangle
   if (faces_done_ == face_count_ && pos < chunk.size) {
     check_trailing_bytes(name_, p + pos, chunk.size - pos, chunk.offset + pos, element);
   }
+  if (chunk.last && polygon_left_ > 0) truncated_polygon(carry_.size());
   if (chunk.last && faces_done_ < face_count_) {
     // The file ends exactly between records.
     face_record<Swap>(p, 0, chunk.offset + chunk.size, needed, out, used);

@@ -30,6 +30,7 @@
 
 #include "io/mesh_stream.hpp"
 #include "io/ply_header.hpp"
+#include "io/polygon_fan.hpp"
 #include "util/memory.hpp"
 
 namespace qemflow::io {
@@ -81,6 +82,9 @@ class PlyBulkReader {
   template <bool Swap, class Out> void decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out);
   template <bool Swap, class Out> size_t face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
                                                      Out& out, size_t& used_triangles);
+  template <bool Swap, class Out> void polygon_indices(const char* p, size_t count, Out& out, size_t& used);
+  [[noreturn]] void bad_index(int64_t index, uint64_t offset) const;
+  [[noreturn]] void truncated_polygon(size_t found_after) const;
   [[noreturn]] void truncated(const std::string& element_name, uint64_t element_count, uint64_t record,
                               uint64_t offset, size_t needed, size_t found) const;
 
@@ -104,9 +108,14 @@ class PlyBulkReader {
   uint64_t vertices_done_ = 0;
   uint64_t faces_done_ = 0;
   uint64_t triangles_done_ = 0;
-  std::vector<char> carry_;  // a face record cut by the end of the previous range
+  std::vector<char> carry_;  // a face record (or a streamed polygon's index) cut by the end of the previous range
   uint64_t carry_offset_ = 0;
-  std::vector<uint64_t> polygon_;
+  // A polygon read as a stream (ply_binary::streamed_polygon_vertices): its fan, the
+  // indices still to come, and its record's offset and length, for errors.
+  PolygonFan fan_;
+  uint64_t polygon_left_ = 0;
+  uint64_t polygon_offset_ = 0;
+  uint64_t polygon_length_ = 0;
 };
 
 // A bulk reader for `path`, or nullptr when its name or body layout is not one the

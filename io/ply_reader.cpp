@@ -11,6 +11,7 @@
 #include "io/byte_source.hpp"
 #include "io/ply_binary.hpp"
 #include "io/ply_header.hpp"
+#include "io/polygon_fan.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::io {
@@ -111,6 +112,16 @@ class PlyReader final : public MeshReader {
     throw_bad_input(name(), place(source_.offset()), what);
   }
 
+  // A streamed polygon (ply_binary::streamed_polygon_vertices) cut by the end of the
+  // file: the words truncated() would use had the whole record been asked for at once.
+  [[noreturn]] void truncated_polygon(const PlyElement& element, size_t index_size) {
+    const uint64_t read = polygon_length_ - polygon_left_ * index_size;
+    throw_bad_input(name(), byte_place(polygon_offset_),
+                    "file ends inside " + record_name(element, done_) + " (needed " +
+                        std::to_string(polygon_length_) + " more bytes, found " +
+                        std::to_string(read + source_.available()) + ")");
+  }
+
   void check_vertex(const Point& p, uint64_t vertex, uint64_t offset) {
     if (!all_finite(p)) {
       throw_bad_input(name(), place(offset),
@@ -134,11 +145,11 @@ class PlyReader final : public MeshReader {
     }
   }
 
-  // Fan-triangulates polygon_ (already validated) into the batch.
-  void emit_polygon(MeshBatch& batch) {
-    for (size_t i = 1; i + 1 < polygon_.size(); ++i) {
-      batch.triangles.push_back({polygon_[0], polygon_[i], polygon_[i + 1]});
-    }
+  bool full(const MeshBatch& batch, size_t budget) const {
+    return batch.vertices.size() + batch.triangles.size() >= budget;
+  }
+  auto emit_into(MeshBatch& batch) {
+    return [&batch](uint64_t a, uint64_t b, uint64_t c) { batch.triangles.push_back({a, b, c}); };
   }
 
   template <bool Swap>
@@ -254,6 +265,26 @@ class PlyReader final : public MeshReader {
       while (done_ < element.count && batch.vertices.size() + batch.triangles.size() < budget) {
         const char* record = p + used;
         const size_t left = available - used;
+        if (polygon_left_ > 0) {  // a streamed polygon: its indices as far as they are here
+          const size_t fit = std::min<uint64_t>({polygon_left_, left / index_size,
+                                                 budget - batch.vertices.size() - batch.triangles.size()});
+          if (fit == 0) {
+            needed = index_size;
+            break;
+          }
+          for (size_t i = 0; i < fit; ++i) {
+            int64_t index = load_integer<Swap>(index_type, record + i * index_size);
+            if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) bad_index(done_, index, polygon_offset_);
+            fan_.add(static_cast<uint64_t>(index), emit_into(batch));
+          }
+          used += fit * index_size;
+          polygon_left_ -= fit;
+          if (polygon_left_ == 0) {
+            fan_.reset();
+            ++done_;
+          }
+          continue;
+        }
         // The common layout: "list uchar int" and triangles only.
         if (only_list && uchar_int && left >= 13 && static_cast<uint8_t>(*record) == 3) {
           uint32_t a = load32<Swap>(record + 1), b = load32<Swap>(record + 5), c = load32<Swap>(record + 9);
@@ -283,6 +314,13 @@ class PlyReader final : public MeshReader {
                             "face " + std::to_string(done_) + " has an implausible " +
                                 std::to_string(count) + " vertices");
           }
+          if (count >= int64_t{streamed_polygon_vertices}) {
+            polygon_left_ = static_cast<uint64_t>(count);
+            polygon_offset_ = source_.offset() + used;
+            polygon_length_ = length;
+            used += count_size;
+            continue;
+          }
           if (left < length) {
             needed = length;
             break;
@@ -295,20 +333,24 @@ class PlyReader final : public MeshReader {
         int64_t count = load_integer<Swap>(count_type, record + list_offset);
         check_polygon_size(done_, count, source_.offset() + used);
         const char* indices = record + list_offset + count_size;
-        polygon_.resize(static_cast<size_t>(count));
         for (int64_t i = 0; i < count; ++i) {
           int64_t index = load_integer<Swap>(index_type, indices + i * index_size);
           if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) {
             bad_index(done_, index, source_.offset() + used);
           }
-          polygon_[i] = static_cast<uint64_t>(index);
         }
-        emit_polygon(batch);
+        for (int64_t i = 0; i < count; ++i) {
+          fan_.add(static_cast<uint64_t>(load_integer<Swap>(index_type, indices + i * index_size)), emit_into(batch));
+        }
+        fan_.reset();
         used += length;
         ++done_;
       }
       source_.consume(used);
-      if (needed > 0 && !source_.fill(needed)) truncated(element, needed);
+      if (needed > 0 && !source_.fill(needed)) {
+        if (polygon_left_ > 0) truncated_polygon(element, index_size);
+        truncated(element, needed);
+      }
     }
   }
 
@@ -427,25 +469,34 @@ class PlyReader final : public MeshReader {
     }
   }
 
+  // A face's triangles go out as its indices are parsed, so a polygon may be cut by
+  // the batch's end: the next call resumes at property ascii_property_, inside the list
+  // when polygon_left_ says so.
   void ascii_faces(size_t budget, MeshBatch& batch) {
     const PlyElement& element = header_.elements[*header_.face_element];
-    while (done_ < element.count && batch.vertices.size() + batch.triangles.size() < budget) {
-      for (size_t i = 0; i < element.properties.size(); ++i) {
-        const PlyProperty& property = element.properties[i];
-        if (i != header_.index_property) {
+    while (done_ < element.count && (ascii_property_ > 0 || !full(batch, budget))) {
+      for (; ascii_property_ < element.properties.size(); ++ascii_property_) {
+        const PlyProperty& property = element.properties[ascii_property_];
+        if (ascii_property_ != header_.index_property) {
           ascii_skip_property(element, property);
           continue;
         }
-        int64_t count = ascii_list_count(element, property);
-        check_polygon_size(done_, count, 0);
-        polygon_.resize(static_cast<size_t>(count));
-        for (int64_t k = 0; k < count; ++k) {
+        if (!in_list_) {
+          int64_t count = ascii_list_count(element, property);
+          check_polygon_size(done_, count, 0);
+          polygon_left_ = static_cast<uint64_t>(count);
+          in_list_ = true;
+        }
+        for (; polygon_left_ > 0; --polygon_left_) {
+          if (full(batch, budget)) return;
           int64_t index = parse_integer(expect_token(element), "vertex index");
           if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) bad_index(done_, index, 0);
-          polygon_[k] = static_cast<uint64_t>(index);
+          fan_.add(static_cast<uint64_t>(index), emit_into(batch));
         }
+        in_list_ = false;
       }
-      emit_polygon(batch);
+      fan_.reset();
+      ascii_property_ = 0;
       ++done_;
     }
   }
@@ -461,7 +512,14 @@ class PlyReader final : public MeshReader {
   uint64_t token_line_ = 0;  // ascii: line of the last token read (what errors name)
   uint64_t vertices_out_ = 0;
   uint64_t triangles_out_ = 0;
-  std::vector<uint64_t> polygon_;
+  // The polygon being read: its fan, and for one cut by a batch's end (ascii) or
+  // streamed (binary), the indices still to read.
+  PolygonFan fan_;
+  uint64_t polygon_left_ = 0;
+  uint64_t polygon_offset_ = 0;  // binary: the record's offset and length, for errors
+  uint64_t polygon_length_ = 0;
+  size_t ascii_property_ = 0;    // ascii: the face property to read next
+  bool in_list_ = false;         // ascii: its list count has been read
 };
 
 }  // namespace

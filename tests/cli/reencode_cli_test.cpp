@@ -5,6 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
+#include <cmath>
+#include <fstream>
 #include <numeric>
 #include <random>
 
@@ -128,6 +131,86 @@ TEST(ReencodeCli, RatioOneToObjGivesTheInCoreBytes) {
             0)
       << out;
   EXPECT_TRUE(file_bytes(dir / "again.obj") == file_bytes(dir / "in_core.obj")) << "an OBJ re-encoded twice changed";
+}
+
+// One polygon of `n` vertices on a circle, as binary PLY ("list int int"), ASCII PLY or
+// OBJ (by the name's end).
+void write_big_polygon(const std::filesystem::path& path, int n) {
+  std::ofstream file(path, std::ios::binary);
+  const std::string name = path.filename().string();
+  auto point = [n](int i) {
+    const double angle = 2 * 3.141592653589793 * i / n;
+    return std::array<float, 3>{float(std::cos(angle)), float(std::sin(angle)), 0.0f};
+  };
+  if (name.ends_with(".obj")) {
+    for (int i = 0; i < n; ++i) file << "v " << point(i)[0] << ' ' << point(i)[1] << " 0\n";
+    file << 'f';
+    for (int i = 1; i <= n; ++i) file << ' ' << i;
+    file << '\n';
+    return;
+  }
+  const bool ascii = name.ends_with(".ascii.ply");
+  file << "ply\nformat " << (ascii ? "ascii" : "binary_little_endian") << " 1.0\nelement vertex " << n
+       << "\nproperty float x\nproperty float y\nproperty float z\nelement face 1\n"
+          "property list int int vertex_indices\nend_header\n";
+  if (ascii) {
+    for (int i = 0; i < n; ++i) file << point(i)[0] << ' ' << point(i)[1] << " 0\n";
+    file << n;
+    for (int i = 0; i < n; ++i) file << ' ' << i;
+    file << '\n';
+    return;
+  }
+  for (int i = 0; i < n; ++i) file.write(reinterpret_cast<const char*>(point(i).data()), 12);
+  file.write(reinterpret_cast<const char*>(&n), 4);
+  for (int i = 0; i < n; ++i) file.write(reinterpret_cast<const char*>(&i), 4);
+}
+
+// Found by session 11's sweep (present at 99d2259): a polygon of millions of vertices
+// was fan-triangulated at once, its index list and every triangle held unleased (a
+// 3M-vertex face re-encoded at 64M: 173 MiB; 1M here at 48M: 61 MiB, ASCII 67, OBJ 52.6).
+// Its triangles now leave in bounded batches as its indices are read (io/polygon_fan.hpp):
+// 23-24 MiB.
+TEST(ReencodeCli, APolygonOfAMillionVerticesStaysUnderTheBudget) {
+  TempDir dir;
+  for (const char* name : {"disc.ply", "disc.ascii.ply", "disc.obj"}) {
+    SCOPED_TRACE(name);
+    const auto in = dir / name;
+    write_big_polygon(in, 1000000);
+    ASSERT_NO_FATAL_FAILURE(expect_out_of_core_reencode_under_48m(dir, in));
+    EXPECT_EQ(nlohmann::json::parse(file_bytes(dir / "r.json"))["output_faces"].get<uint64_t>(), 999998u);
+  }
+}
+
+// Found by session 11's sweep (present at 99d2259): the decoder window of a .zst input
+// was never leased; `zstd --long=27` of a 3M-face mesh re-encoded at 50M peaked at
+// 70 MiB. Read from a pipe, zstd cannot shrink the window to the input: this frame
+// declares 128 MiB. The window is now leased before the load, so 48M is refused up
+// front naming the budget it needs, and that budget runs, with the plain file's bytes.
+TEST(ReencodeCli, ALongZstdWindowIsLeasedOrRefused) {
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  const auto packed = dir / "blob.ply.zst";
+  ASSERT_NO_FATAL_FAILURE(generate(mesh, "--faces 20000"));
+  std::string out;
+  if (run_command("zstd -q --long=27 -c < " + mesh.string() + " > " + packed.string(), &out) != 0) {
+    GTEST_SKIP() << "no zstd command: " << out;
+  }
+  auto simplify = [&](const std::filesystem::path& in, const std::string& result, const std::string& budget) {
+    return run_command(cli_path().string() + " simplify " + in.string() + " " + (dir / result).string() +
+                           " --ratio 1 --mem-budget " + budget + " --quiet --scratch " + dir.path().string(),
+                       &out);
+  };
+  ASSERT_EQ(simplify(packed, "refused.ply", "48M"), 4) << out;
+  EXPECT_NE(out.find("the minimum budget is"), std::string::npos) << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "refused.ply"));
+  const auto at = out.find("the minimum budget is ");
+  ASSERT_NE(at, std::string::npos);
+  std::string minimum = out.substr(at + 22);
+  minimum = minimum.substr(0, minimum.find(" MiB"));
+  const std::string budget = std::to_string(int(std::stod(minimum)) + 1) + "M";
+  ASSERT_EQ(simplify(packed, "packed.ply", budget), 0) << out;
+  ASSERT_EQ(simplify(mesh, "plain.ply", budget), 0) << out;
+  EXPECT_TRUE(file_bytes(dir / "packed.ply") == file_bytes(dir / "plain.ply"));
 }
 
 }  // namespace
