@@ -5,6 +5,7 @@
 #include <unistd.h>
 #define ZSTD_STATIC_LINKING_ONLY  // frame headers and decoder size estimates
 #include <zstd.h>
+#include <zstd_errors.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -78,12 +79,12 @@ ByteSource::ByteSource(const std::filesystem::path& path, bool zstd, size_t buff
     zstd_ = std::make_unique<Zstd>();
     zstd_->stream = ZSTD_createDStream();
     if (!zstd_->stream) throw Error(ErrorKind::resource, name_ + ": cannot create zstd stream");
-    // The decoder may allocate no larger a window than the first frame's (what
-    // zstd_decoder_bytes told the caller to reserve), or the allowance every caller
-    // already counts: a later frame, or a corrupt header, cannot allocate past them.
+    // The first frame's window (what zstd_decoder_bytes_to_reserve told the caller to
+    // reserve), and zstd's default limit for later frames (see byte_source.hpp).
     std::vector<char> header;
     const auto frame = first_frame_header(fd_, header);
-    const int log = std::max(window_log(zstd_window_allowance), frame ? window_log(frame->windowSize) : 0);
+    const int log = std::max({window_log(zstd_window_allowance), frame ? window_log(frame->windowSize) : 0,
+                              ZSTD_WINDOWLOG_LIMIT_DEFAULT});
     ZSTD_DCtx_setParameter(zstd_->stream, ZSTD_d_windowLogMax, std::min(log, ZSTD_WINDOWLOG_MAX));
     zstd_->input.resize(size_t{1} << 20);
     zstd_->in = {zstd_->input.data(), 0, 0};
@@ -122,6 +123,11 @@ size_t ByteSource::read_decompressed(char* destination, size_t capacity) {
     }
     size_t input_before = file_bytes_read_ - (z.in.size - z.in.pos);
     size_t result = ZSTD_decompressStream(z.stream, &out, &z.in);
+    if (ZSTD_isError(result) && ZSTD_getErrorCode(result) == ZSTD_error_frameParameter_windowTooLarge) {
+      throw Error(ErrorKind::resource, name_ + ": byte " + std::to_string(input_before) +
+                                           " of the compressed file: a zstd frame needs a larger window than "
+                                           "the decoder allows (recompress without --long, or as one frame)");
+    }
     if (ZSTD_isError(result)) {
       throw_bad_input(name_, "byte " + std::to_string(input_before) + " of the compressed file",
                       std::string("corrupted zstd data (") + ZSTD_getErrorName(result) + ")");

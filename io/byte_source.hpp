@@ -21,10 +21,12 @@ namespace qemflow::io {
 // count; zstd_decoder_bytes_to_reserve(path) is what the decoder of the file's first
 // frame needs beyond that (ZSTD_estimateDStreamSize_fromFrame, less the same estimate
 // for the allowance): 0 for a small window, or a file with no zstd frame header to
-// read. The caller reserves it before it reads. A ByteSource refuses (corrupted zstd
-// data, "Frame requires too much memory") a frame whose window is larger than both
-// the first frame's and the allowance, so neither a later frame nor a lying header
-// allocates past the reservation.
+// read. The caller reserves it before it reads. A later frame of a concatenated file
+// (`cat a.zst b.zst`) may need a larger window than the first; it still decodes up to
+// zstd's default limit (128 MiB, windowLog 27; review14 found such files refused as
+// corrupt when the limit was the first frame's), and that excess is not reserved:
+// finding it would mean walking every frame's blocks before reading. A frame past
+// both that limit and the first frame's window is refused as a resource error.
 inline constexpr uint64_t zstd_window_allowance = uint64_t{8} << 20;
 uint64_t zstd_decoder_bytes_to_reserve(const std::filesystem::path& path);
 

@@ -213,5 +213,31 @@ TEST(ReencodeCli, ALongZstdWindowIsLeasedOrRefused) {
   EXPECT_TRUE(file_bytes(dir / "packed.ply") == file_bytes(dir / "plain.ply"));
 }
 
+// Review14: a concatenated file whose second frame has a longer window than its first
+// (`cat a.zst b.zst`) is valid zstd; with the decoder limited to the first frame's
+// window it was refused as corrupt.
+TEST(ReencodeCli, AConcatenatedZstdWhoseLaterFrameHasALongerWindowDecodes) {
+  TempDir dir;
+  const auto mesh = dir / "blob.ply";
+  const auto packed = dir / "blob.ply.zst";
+  ASSERT_NO_FATAL_FAILURE(generate(mesh, "--faces 20000"));
+  const std::string m = mesh.string(), d = dir.path().string();
+  std::string out;
+  if (run_command("head -c 1000 " + m + " | zstd -q -3 -c > " + d + "/a.zst && tail -c +1001 " + m +
+                      " | zstd -q --long=27 -3 -c > " + d + "/b.zst && cat " + d + "/a.zst " + d + "/b.zst > " +
+                      packed.string(),
+                  &out) != 0) {
+    GTEST_SKIP() << "no zstd command: " << out;
+  }
+  auto simplify = [&](const std::filesystem::path& in, const std::string& result) {
+    return run_command(cli_path().string() + " simplify " + in.string() + " " + (dir / result).string() +
+                           " --ratio 1 --mem-budget 256M --quiet --scratch " + d,
+                       &out);
+  };
+  ASSERT_EQ(simplify(packed, "packed.ply"), 0) << out;
+  ASSERT_EQ(simplify(mesh, "plain.ply"), 0) << out;
+  EXPECT_TRUE(file_bytes(dir / "packed.ply") == file_bytes(dir / "plain.ply"));
+}
+
 }  // namespace
 }  // namespace qemflow::testing
