@@ -7,6 +7,7 @@
 #include <cstring>
 #include <limits>
 #include <string_view>
+#include <utility>
 
 #include "nodes/decimate/quadric.hpp"
 
@@ -34,7 +35,7 @@ constexpr int kWidth = 8;
 }  // namespace avx512
 #pragma GCC pop_options
 
-static_assert(2 * kFanBlock % 8 == 0, "the AVX-512 version reads 4 triangles at a time");
+static_assert(kFanBlock % 4 == 0, "the AVX-512 version reads 4 triangles at a time");
 
 using Kernel = void (*)(const FanRows&, int, const Vec3&, const Vec3&, double*);
 
@@ -82,7 +83,7 @@ bool use_fan_kernel(FanKernel k) {
 void FanDeviation::flush() {
   // Pad the block with copies of the last triangle (a minimum does not change).
   for (int k = pending_; k < kFanBlock; ++k)
-    for (auto& row : rows_) row[2 * k] = row[2 * k + 1] = row[2 * pending_ - 1];
+    for (auto& row : rows_) row[k] = row[pending_ - 1];
   kernel(rows_, pending_, a_, b_, nearest_);
   pending_ = 0;
   empty_ = false;

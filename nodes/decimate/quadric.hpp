@@ -68,9 +68,10 @@ double collapse_deviation(const Vec3& a, double area_a, const Vec3& b, double ar
 // triangles are buffered and measured kFanBlock at a time by a kernel compiled for the
 // widest vector unit the CPU has (fan_kernel.cpp): every version gives the same bits.
 inline constexpr int kFanBlock = 4;
-// Row 3 * i + c: coordinate c of vertex i of each buffered triangle k, twice (lanes
-// 2k and 2k + 1, where the kernel measures the distances of a and of b).
-using FanRows = double[9][2 * kFanBlock];
+// Row 3 * i + c: coordinate c of vertex i of each buffered triangle k, once; the kernel
+// duplicates it into lanes 2k and 2k + 1 (the distances of a and of b), so `add` stores
+// 9 doubles per triangle.
+using FanRows = double[9][kFanBlock];
 
 class FanDeviation {
  public:
@@ -79,7 +80,7 @@ class FanDeviation {
   void add(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
     const Vec3* p[3] = {&p0, &p1, &p2};
     for (int i = 0; i < 3; ++i)
-      for (int c = 0; c < 3; ++c) rows_[3 * i + c][2 * pending_] = rows_[3 * i + c][2 * pending_ + 1] = (*p[i])[c];
+      for (int c = 0; c < 3; ++c) rows_[3 * i + c][pending_] = (*p[i])[c];
     if (++pending_ == kFanBlock) flush();
   }
   // collapse_deviation(a, area_a, b, area_b, the triangles added).
