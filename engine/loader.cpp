@@ -115,6 +115,10 @@ bool repeated(const Triangle& t) { return t[0] == t[1] || t[1] == t[2] || t[0] =
 constexpr uint64_t bytes_per_input_element = 160;
 constexpr uint64_t min_input_lease = 64 * bytes_per_input_element;
 constexpr uint64_t max_input_lease = 4ull << 20;
+// The least the loader's reservation holds (its three spills at their minimum), and
+// what it leaves the streamed items at least: loader_minimum_bytes() is their sum.
+uint64_t reserve_minimum_bytes() { return 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace)); }
+constexpr uint64_t items_minimum_bytes = 4 * max_input_lease;
 // How many faces ahead the face loops prefetch their vertex positions: enough to
 // cover a miss to memory at a few ns a face.
 constexpr size_t prefetch_faces_ahead = 16;
@@ -456,8 +460,6 @@ class Loader {
     // is held for as long as the input may be read: `zstd --long=27` (128 MiB) unleased
     // took a 3M-face re-encode at 50M to 70 MiB.
     const uint64_t window_bytes = input_window_bytes(input);
-    const uint64_t reserve_min = 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace));
-    const uint64_t items_min = 4 * max_input_lease;
     job_.require_fits(job_.owner("loader"), loader_minimum_bytes() + window_bytes);
     if (window_bytes > 0) {
       window_ = job_.governor().acquire(job_.owner("input window"), window_bytes, window_bytes,
@@ -475,23 +477,22 @@ class Loader {
     // moment must not count the same bytes (together they took everything, and both
     // input streams waited forever for a batch lease).
     reserve_ = job_.governor().acquire_share(
-        job_.owner("loader reserve"), reserve_min,
-        [items_min](uint64_t free) { return free - std::min(free, std::max(items_min, free / 4)); },
+        job_.owner("loader reserve"), reserve_minimum_bytes(),
+        [](uint64_t free) { return free - std::min(free, std::max(items_minimum_bytes, free / 4)); },
         [this] { return job_.stopped(); });
     job_.check();
     capacity_ = reserve_.bytes();
-    items_min_ = items_min;
     held_outside_ = job_.governor().in_use() - std::min(job_.governor().in_use(), capacity_);
   }
 
   // The budget at which what the reservation holds now (`bytes` short) would be enough.
   // What the loader's spills have taken grows with the reservation (fractions of it, at
   // most half at any time), so the reservation grows by twice the shortfall; it is the
-  // share of the free memory above (3/4, or all but items_min_), on top of the process
+  // share of the free memory above (3/4, or all but items_minimum_bytes), on top of the process
   // baseline and what other owners hold (the job's trace, another job).
   uint64_t budget_for_shortfall(uint64_t short_bytes) const {
     const uint64_t reservation = capacity_ + 2 * short_bytes;
-    const uint64_t free = std::max(reservation + items_min_, (reservation * 4 + 2) / 3);
+    const uint64_t free = std::max(reservation + items_minimum_bytes, (reservation * 4 + 2) / 3);
     return job_.governor().baseline() + held_outside_ + free;
   }
 
@@ -1590,7 +1591,6 @@ class Loader {
   Lease window_;   // a .zst input's decoder window, when larger than zstd_window_allowance
   Lease reserve_;  // the loader's working set; parts are split off and merged back
   uint64_t capacity_ = 0;
-  uint64_t items_min_ = 0;     // what the reservation leaves the streamed items at least
   uint64_t held_outside_ = 0;  // what other owners held when the reservation was granted
   double progress_span_ = 0.4;
   double progress_base_ = 0;
@@ -1815,7 +1815,7 @@ LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesyst
   return Loader(job, scratch, input, options, hooks).run();
 }
 
-uint64_t loader_minimum_bytes() { return 3 * BucketSpill::min_lease_bytes(sizeof(BlockFace)) + 4 * max_input_lease; }
+uint64_t loader_minimum_bytes() { return reserve_minimum_bytes() + items_minimum_bytes; }
 
 void require_budget_for_load(uint64_t budget, uint64_t baseline) {
   if (budget >= baseline + loader_minimum_bytes()) return;

@@ -83,8 +83,8 @@ ByteSource::ByteSource(const std::filesystem::path& path, bool zstd, size_t buff
     // reserve), and zstd's default limit for later frames (see byte_source.hpp).
     std::vector<char> header;
     const auto frame = first_frame_header(fd_, header);
-    const int log = std::max({window_log(zstd_window_allowance), frame ? window_log(frame->windowSize) : 0,
-                              ZSTD_WINDOWLOG_LIMIT_DEFAULT});
+    static_assert(zstd_window_allowance <= uint64_t{1} << ZSTD_WINDOWLOG_LIMIT_DEFAULT);
+    const int log = std::max(frame ? window_log(frame->windowSize) : 0, ZSTD_WINDOWLOG_LIMIT_DEFAULT);
     ZSTD_DCtx_setParameter(zstd_->stream, ZSTD_d_windowLogMax, std::min(log, ZSTD_WINDOWLOG_MAX));
     zstd_->input.resize(size_t{1} << 20);
     zstd_->in = {zstd_->input.data(), 0, 0};

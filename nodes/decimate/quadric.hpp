@@ -95,9 +95,9 @@ class FanDeviation {
   bool empty_ = true;
 };
 
-// The versions of FanDeviation's kernel, one per instruction set (same bits). The
-// widest one the CPU runs is used, unless QEMFLOW_FAN_KERNEL (sse2, avx2, avx512)
-// names another one it runs.
+// The versions of FanDeviation's kernel, one per instruction set (same bits). AVX2 is
+// used where the CPU runs it (AVX-512F was no faster: nodes/decimate/README.md), else
+// SSE2, unless QEMFLOW_FAN_KERNEL (sse2, avx2, avx512) names another one it runs.
 enum class FanKernel { kSse2, kAvx2, kAvx512 };
 FanKernel fan_kernel();
 // Testing: use `kernel` from now on; false (nothing changes) when the CPU lacks it.

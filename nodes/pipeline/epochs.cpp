@@ -314,11 +314,18 @@ class UniqueVertexRecords {
 };
 
 // Builds a chunk blob from faces and the (deduplicated) vertex records they use.
-Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
-  Bytes blob(blob_bytes(faces.size(), vertices.size()));
-  const uint64_t nf = faces.size(), nv = vertices.size();
+// A blob for `nf` face and `nv` vertex records with its header written; the records
+// go from data() + 16 on, faces first (view_blob's layout).
+Bytes blob_with_header(uint64_t nf, uint64_t nv) {
+  Bytes blob(blob_bytes(nf, nv));
   std::memcpy(blob.data(), &nf, 8);
   std::memcpy(blob.data() + 8, &nv, 8);
+  return blob;
+}
+
+Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
+  const uint64_t nf = faces.size(), nv = vertices.size();
+  Bytes blob = blob_with_header(nf, nv);
   if (nf) std::memcpy(blob.data() + 16, faces.data(), nf * sizeof(FaceRecord));
   if (nv) std::memcpy(blob.data() + 16 + nf * sizeof(FaceRecord), vertices.data(), nv * sizeof(VertexRecord));
   return blob;
@@ -961,16 +968,14 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
           used[c] |= RunMask(1u << k);
         }
         // The asked runs as one blob (replacing the records), each cached run as its own.
-        // Written in place (make_blob's layout): staging the records in vectors first
+        // Written in place: staging the records in vectors for make_blob first
         // copied each twice more, with the vectors' growth.
         auto blob_of = [&](RunMask mask) {
           uint64_t nf = 0, nv = 0;
           for (size_t k = 0; k < ChunkMeta::kParts; ++k)
             if (mask >> k & 1u) nf += kept[k].size();
           for (uint64_t i = 0; i < v.vertices; ++i) nv += (used[i] & mask) != 0;
-          Bytes blob(blob_bytes(nf, nv));
-          std::memcpy(blob.data(), &nf, 8);
-          std::memcpy(blob.data() + 8, &nv, 8);
+          Bytes blob = blob_with_header(nf, nv);
           std::byte* at = blob.data() + 16;
           for (size_t k = 0; k < ChunkMeta::kParts; ++k)
             if ((mask >> k & 1u) && !kept[k].empty()) {

@@ -125,9 +125,9 @@ Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, cons
   // Too little surface for the clusters the budget asked for (every face a copy of one
   // triangle gives one sample): valid input, so as many clusters as there are samples,
   // and none (one patch) below two; the caller decides whether one patch can run.
+  result.samples = set.samples.size();
+  result.radius = set.radius;
   if (set.samples.size() < clusters) {
-    result.samples = set.samples.size();
-    result.radius = set.radius;
     if (set.samples.size() < 2) {
       result.clusters = 1;
       return result;
@@ -145,8 +145,6 @@ Partition partition_blocks(engine::Job& job, engine::ScratchStore& scratch, cons
     for (uint32_t label : clustering.labels) ++result.samples_per_cluster[label];
   });
   job.check();
-  result.samples = set.samples.size();
-  result.radius = set.radius;
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return result;
 }
