@@ -44,7 +44,6 @@ struct Partition {
   double area = 0;
   uint32_t fcm_iterations = 0;
   std::vector<uint64_t> samples_per_cluster;
-  double seconds = 0;
 
   uint32_t owner_of(const std::array<Point, 3>& positions) const {
     return clusters <= 1 ? 0 : classifier.classify(partition::barycenter(positions));
