@@ -12,6 +12,7 @@
 
 #include "config/size.hpp"
 #include "engine/blocks.hpp"
+#include "engine/face_cells.hpp"
 #include "engine/process_memory.hpp"
 #include "engine/spill.hpp"
 #include "engine/stream_pass.hpp"
@@ -831,6 +832,13 @@ class Loader {
         const size_t faces = item.triangle_count();
         item.cells.resize(faces);
         const std::byte* records = item.block_records.data();
+        if (floats) {
+          // Scalar: over the whole vertex array the lookups wait on memory, not on the
+          // divisions, and the AVX2 kernel's gathers came out 5-10% slower.
+          face_cells_xyz(FaceCellsKernel::scalar, mesh_.grid, xyz.data(), 0, vertex_count, records,
+                         triangle32_record_size, faces, item.cells.data());
+          return;
+        }
         auto id = [&](size_t i, int k) {
           uint32_t v;
           std::memcpy(&v, records + i * triangle32_record_size + k * sizeof v, sizeof v);
@@ -841,12 +849,7 @@ class Loader {
             for (int k = 0; k < 3; ++k) prefetch_position(floats, xyz.data(), positions.data(), id(i + prefetch_faces_ahead, k));
           }
           const uint64_t a = id(i, 0), b = id(i, 1), c = id(i, 2);
-          if (floats) {
-            auto at = [&](uint64_t v) { return Point{xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]}; };
-            item.cells[i] = mesh_.grid.cell_of(barycenter({at(a), at(b), at(c)}));
-          } else {
-            item.cells[i] = mesh_.grid.cell_of(barycenter({positions[a], positions[b], positions[c]}));
-          }
+          item.cells[i] = mesh_.grid.cell_of(barycenter({positions[a], positions[b], positions[c]}));
         }
         return;
       }
@@ -1406,6 +1409,11 @@ class Loader {
                 const std::byte* ids_at = records.data() + sizeof(uint32_t);
                 auto* cells = reinterpret_cast<uint32_t*>(records.data() + n * size);
                 const uint64_t pair_vertices = floats ? pair_xyz.size() / 3 : pair.size();
+                if (floats) {
+                  // Over a window pair the divisions, not memory, set the pace: AVX2 when the CPU has it.
+                  face_cells_xyz(mesh_.grid, pair_xyz.data(), first, pair_vertices, ids_at, size, n, cells);
+                  return;
+                }
                 for (uint64_t i = 0; i < n; ++i, ids_at += size) {
                   if (i + prefetch_faces_ahead < n) {  // as in load_resident
                     uint32_t ahead[3];
