@@ -155,6 +155,26 @@ struct Box {
       float_exact = float_exact && double(float(p[i])) == p[i];
     }
   }
+  // add(p) for each point in turn, the same min, max and float_exact, with the box
+  // in locals: through the members, each point's min, max and float test waited on
+  // the last point's stores (half the out-of-core load's transform).
+  void add(const Point* points, size_t n) {
+    double lo[3] = {min[0], min[1], min[2]}, hi[3] = {max[0], max[1], max[2]};
+    bool exact = true;
+    for (size_t j = 0; j < n; ++j) {
+      for (int i = 0; i < 3; ++i) {
+        const double x = points[j][i];
+        lo[i] = std::min(lo[i], x);
+        hi[i] = std::max(hi[i], x);
+        exact &= double(float(x)) == x;
+      }
+    }
+    for (int i = 0; i < 3; ++i) {
+      min[i] = lo[i];
+      max[i] = hi[i];
+    }
+    float_exact = float_exact && exact;
+  }
   void add(const Box& other) {
     for (int i = 0; i < 3; ++i) {
       min[i] = std::min(min[i], other.min[i]);
@@ -973,7 +993,7 @@ class Loader {
       } else {
         std::copy(batch.vertices.begin(), batch.vertices.end(), positions.begin() + int64_t(batch.first_vertex));
       }
-      for (const Point& p : batch.vertices) item.box.add(p);
+      item.box.add(batch.vertices.data(), batch.vertices.size());
     };
     vertex_pass.sink = [&](InputItem& item, Lease&) {
       box_.add(item.box);
@@ -1102,7 +1122,7 @@ class Loader {
     auto pass = input_pass();
     pass.transform = [&](InputItem& item, Lease&) {
       const auto& batch = item.batch;
-      for (const Point& p : batch.vertices) item.box.add(p);
+      item.box.add(batch.vertices.data(), batch.vertices.size());
       uint64_t done = 0;
       while (done < batch.vertices.size()) {  // one frame per chunk the batch touches
         uint64_t first = batch.first_vertex + done;
