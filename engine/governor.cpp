@@ -106,6 +106,25 @@ Governor::Governor(uint64_t budget, uint64_t baseline) : budget_(budget), baseli
   }
 }
 
+Governor::Governor(Governor& parent, const std::string& owner, uint64_t bytes, const std::function<bool()>& stop)
+    : budget_(parent.baseline() + bytes),
+      baseline_(parent.baseline()),
+      parent_(&parent),
+      reservation_(parent.acquire(owner, bytes, bytes, stop)) {
+  if (bytes == 0) throw Error(ErrorKind::usage, owner + ": a job's reservation of 0 bytes");
+  if (!reservation_) throw Error(ErrorKind::cancelled, "cancelled");
+}
+
+int Governor::jobs_alive() const { return root()->jobs_alive_.load(); }
+uint64_t Governor::jobs_started() const { return root()->jobs_started_.load(); }
+void Governor::job_started() {
+  // Alive before started, read in the other order by a window (SoleJobPeakWindow): a
+  // start it did not count as alive moves the started count it reads at its end.
+  ++root()->jobs_alive_;
+  ++root()->jobs_started_;
+}
+void Governor::job_ended() { --root()->jobs_alive_; }
+
 uint64_t Governor::in_use() const {
   std::lock_guard lock(mutex_);
   return in_use_;

@@ -15,7 +15,15 @@
 //   library state) measured at start; it is reserved once and never leased.
 // - Accounting is per owner (a node's name): current, peak, total granted, number of
 //   grants, denials and waits, so the report can say who held what.
+// - Jobs side by side (a host running several at once): each job that leases in
+//   steps (a patch lease held while its gather leases frame buffers) reserves its
+//   memory first, as one lease taken while it holds nothing, and runs on a governor of
+//   its own made from that reservation (the reserving constructor). Inside, its stages
+//   size themselves from its capacity as a lone run's do; across jobs the only wait is
+//   for the reservation, so no job holds memory while it waits for another's, and the
+//   reservations together stay within this governor's capacity.
 // Thread safety: every member may be called from any thread.
+#include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <functional>
@@ -77,6 +85,15 @@ class Governor {
   // `budget`: the whole process's cap (--mem-budget). `baseline`: bytes the process
   // needs for itself; must be below budget (else Error(resource)).
   Governor(uint64_t budget, uint64_t baseline);
+  // A job's own governor inside `parent`: waits (holding nothing) until `bytes` of the
+  // parent's capacity are free, takes them as one lease of `owner`, held until this
+  // governor is destroyed, and grants its leases from them alone. Its capacity() is
+  // `bytes`; budget() is the parent's baseline plus `bytes` (the process budget that would
+  // give a lone run this capacity: the budget its error messages name). Throws
+  // Error(resource) up front if `bytes` can never fit the parent (naming the parent's
+  // minimum budget), Error(cancelled) if `stop` returns true while it waits
+  // (parent.wake_all() wakes the wait). Must be destroyed before the parent.
+  Governor(Governor& parent, const std::string& owner, uint64_t bytes, const std::function<bool()>& stop = {});
   Governor(const Governor&) = delete;
   Governor& operator=(const Governor&) = delete;
 
@@ -117,6 +134,14 @@ class Governor {
   void wake_all();
 
   std::vector<OwnerStats> owners() const;
+
+  // Jobs (engine::Job registers itself) alive on the root governor and on every governor
+  // reserved from it, and how many ever started there: a job alone at both ends of a
+  // window, with no start in between, was alone through it (job.hpp, SoleJobPeakWindow).
+  int jobs_alive() const;
+  uint64_t jobs_started() const;
+  void job_started();
+  void job_ended();
   // Called (outside the lock) with the new in-use total after every change; for
   // trace counters. Set before any lease exists.
   void set_observer(std::function<void(uint64_t in_use)> observer) { observer_ = std::move(observer); }
@@ -141,8 +166,15 @@ class Governor {
   bool take_more(void* owner, uint64_t bytes);
   void notify_after_release(std::unique_lock<std::mutex>& lock);
 
+  Governor* root() { return parent_ ? parent_->root() : this; }
+  const Governor* root() const { return parent_ ? parent_->root() : this; }
+
   const uint64_t budget_;
   const uint64_t baseline_;
+  Governor* const parent_ = nullptr;
+  Lease reservation_;  // of the parent: this governor's capacity
+  std::atomic<int> jobs_alive_{0};  // counted on the root only
+  std::atomic<uint64_t> jobs_started_{0};
   mutable std::mutex mutex_;
   std::condition_variable released_;
   uint64_t in_use_ = 0;

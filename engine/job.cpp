@@ -1,5 +1,6 @@
 #include "engine/job.hpp"
 
+#include "engine/process_memory.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -37,6 +38,7 @@ Job::Job(Governor& governor, JobHooks hooks, JobSettings settings)
     governor_.set_observer([this](uint64_t in_use) { trace_.counter("governor bytes in use", double(in_use)); });
   }
   io_ = std::make_unique<IoThread>(&trace_, &activity_);
+  governor_.job_started();
   alive_ = std::make_shared<std::atomic<Job*>>(this);
   if (hooks_.cancel) {
     hooks_.cancel->on_cancel([alive = alive_] {
@@ -50,7 +52,47 @@ Job::Job(Governor& governor, JobHooks hooks, JobSettings settings)
 Job::~Job() {
   alive_->store(nullptr);
   io_.reset();  // drains: no I/O task may outlive the job
+  governor_.job_ended();
   if (trace_.enabled()) governor_.set_observer({});
+}
+
+std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& job_name, uint64_t bytes,
+                                          const JobHooks& hooks) {
+  if (bytes == 0) bytes = shared.capacity();
+  // A cancel wakes the wait; the callback may fire after the wait (or the shared
+  // governor) is gone, so it finds the governor through a pointer cleared under a lock.
+  struct Waiting {
+    std::mutex mutex;
+    Governor* governor;
+  };
+  auto waiting = std::make_shared<Waiting>();
+  waiting->governor = &shared;
+  if (hooks.cancel) {
+    hooks.cancel->on_cancel([waiting] {
+      std::lock_guard lock(waiting->mutex);
+      if (waiting->governor) waiting->governor->wake_all();
+    });
+  }
+  struct Clear {
+    Waiting& waiting;
+    ~Clear() {
+      std::lock_guard lock(waiting.mutex);
+      waiting.governor = nullptr;
+    }
+  } clear{*waiting};
+  return std::make_unique<Governor>(shared, job_name + "job", bytes,
+                                    [&] { return hooks.cancel && hooks.cancel->cancelled(); });
+}
+
+SoleJobPeakWindow::SoleJobPeakWindow(const Governor& governor)
+    : governor_(governor), started_(governor.jobs_started()) {
+  open_ = governor.jobs_alive() == 1;  // after started_ (Governor::job_started)
+  if (open_) reset_peak_resident();
+}
+
+uint64_t SoleJobPeakWindow::peak() const {
+  const bool alone = open_ && governor_.jobs_alive() == 1 && governor_.jobs_started() == started_;
+  return alone ? window_peak_resident_bytes() : 0;
 }
 
 void Job::fail(std::exception_ptr error) {

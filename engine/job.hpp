@@ -70,6 +70,30 @@ struct StageStats {
 
 class Job;
 
+// A job's own governor reserved from the shared one (Governor's reserving
+// constructor): `bytes` of its capacity (0: all of it, so the job waits until nothing
+// else holds memory there and then runs alone), owned by `job_name + "job"`. The wait
+// ends with Error(cancelled) when hooks.cancel fires.
+std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& job_name, uint64_t bytes,
+                                          const JobHooks& hooks);
+
+// A window over the process's resident high-water mark for one phase of a job. VmHWM is
+// one per process and reset_peak_resident resets it for every reader, so the window
+// opens (resets it) only when the job is the only one alive on its governor's root
+// (Governor::jobs_alive); peak() is the window's high-water mark when no other job was
+// alive at either end or started in between, else 0 (not measured: another job's
+// memory would be in it). The process's own peak (peak_resident_bytes) is kept either way.
+class SoleJobPeakWindow {
+ public:
+  explicit SoleJobPeakWindow(const Governor& governor);
+  uint64_t peak() const;
+
+ private:
+  const Governor& governor_;
+  bool open_ = false;
+  uint64_t started_ = 0;
+};
+
 // Adds the wall time of a scope to a stage (the pipeline's top-level phases).
 class StageTimer {
  public:

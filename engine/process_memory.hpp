@@ -11,12 +11,14 @@ uint64_t resident_bytes();  // VmRSS now
 uint64_t peak_resident_bytes();
 // Opens a window: keeps VmHWM for peak_resident_bytes, then resets it to the current
 // RSS (Linux: "5" > /proc/self/clear_refs); false if refused (the window is then the
-// whole run). Not for concurrent use.
+// whole run). Not for concurrent use, and it cuts short any other window in the
+// process: jobs open theirs through SoleJobPeakWindow (job.hpp), only when alone.
 bool reset_peak_resident();
 // VmHWM: the high-water mark since the last reset_peak_resident (or start).
 uint64_t window_peak_resident_bytes();
 
-// Process-wide glibc settings (call once, before the big work; idempotent): a fixed
+// Process-wide glibc settings (call once, before the big work; idempotent; the host's
+// choice: the CLI's commands call it, library jobs never do): a fixed
 // mmap threshold of 4 MiB, so that every big buffer (vertex windows, face ranges) is
 // its own mapping, unmapped on free (glibc's dynamic threshold would otherwise move
 // big buffers onto the heap, where freed space stays resident), few arenas, and a low

@@ -1796,7 +1796,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // back here, else the finish's lease comes on top of it (a shuffled 300k at 84M
   // --clusters 2 went straight to the finish and peaked at 92 MiB, 39-65 MiB at its start).
   engine::trim_allocator();
-  engine::reset_peak_resident();  // the finish's own window (the process's peak is kept)
+  const engine::SoleJobPeakWindow finish_window(job.governor());  // the finish's own window (job.hpp)
   st.in_core_start_rss = engine::resident_bytes();
   // The epochs may stop short of a state that fits (nothing left to collapse: a soup's
   // isolated triangles): refused here with the minimum budget, before the gather, rather
@@ -1826,7 +1826,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
     for (size_t i = 0; i < out.faces.size(); ++i)
       result.triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
   });
-  st.in_core_peak_rss = engine::window_peak_resident_bytes();
+  st.in_core_peak_rss = finish_window.peak();
   st.output_faces = result.triangles.size();
   st.output_vertices = result.points.size();
   return result;

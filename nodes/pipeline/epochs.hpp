@@ -127,7 +127,8 @@ struct OocStats {
   uint64_t in_core_vertices = 0;     // their distinct vertices (in_core_finish_bytes)
   // The process's RSS as the finish starts (before its lease) and its high-water mark
   // over the finish (gather, build, decimation, extract): what kInCoreBytesPerFace is
-  // checked against.
+  // checked against. The peak is 0 (not measured) when another job shared the process
+  // during the finish (engine::SoleJobPeakWindow): the mark is one per process.
   uint64_t in_core_start_rss = 0, in_core_peak_rss = 0;
   uint64_t patch_faces_max = 0;      // largest patch (owned + halo)
   // Scratch on disk as the epochs start: the first state alone, the blocks it was
@@ -221,18 +222,49 @@ inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {
   return faces * kInCoreBytesPerFace + extra * kInCoreBytesPerExtraVertex;
 }
 
-// The whole `qemflow simplify IN OUT` out-of-core command: governor (budget, measured
-// baseline), job, scratch, load, simplify_blocks, write (same bytes as --in-core),
-// report. Throws qemflow::Error (bad_input, resource, cancelled); nothing is left in
-// scratch and no output exists after a failure.
-struct OocCommand {
-  std::filesystem::path input, output, scratch_dir, trace_path, report_path;
-  uint64_t mem_budget = 0;  // 0: half the physical memory
+// One out-of-core simplify as a library job: input to output, on a governor shared by
+// every job of the process (a daemon may run several at once, each in its own thread).
+// - Memory: the job first reserves `job_budget` bytes of the governor's capacity (0: all
+//   of it), waiting while other jobs hold them, and then runs on a governor of its own
+//   made from that reservation (engine::reserve_for_job): its patch leases, the loader's
+//   reservations and the in-core finish size themselves from the job's capacity
+//   exactly as a lone run with that capacity does, and it waits only for its own
+//   memory. So jobs never deadlock on each other, and together never hold more than the
+//   governor's capacity. When the shared budget is tight, the jobs take turns: a job
+//   whose reservation does not fit beside the others' waits, holding nothing, until
+//   they finish (waiters are woken by every release, in no fixed order). A job_budget
+//   larger than the governor's capacity fails up front (Error resource, naming the
+//   budget); one too small for the job fails as a lone run at that budget would, the
+//   budget named being the governor's baseline plus the job's reservation.
+// - The output does not depend on the budget or on other jobs (out of core equals in
+//   core): it is the bytes the CLI writes for the same input and options.
+// - Owners in the governors are prefixed with job_name ("job 2/"): the reservation is
+//   job_name + "job" in the shared governor, the stages' leases are in the job's own
+//   (the report's "nodes").
+// - Process-wide state is the host's: allocator settings (engine::tune_allocator, which
+//   the CLI calls once) are not touched; the finish resets the process's peak-RSS
+//   mark only while it is the only job alive (OocStats::in_core_peak_rss).
+// Returns the report (what --report writes; its budget, governor peak and nodes are the
+// job's own, its peak RSS the process's). Throws qemflow::Error (bad_input, resource,
+// cancelled); nothing is left in scratch and no output exists after a failure.
+struct OocJob {
+  std::filesystem::path input, output, scratch_dir, trace_path;
   int threads = 0;
-  bool quiet = false;
   bool double_precision = false;  // as `--double`
   bool weld = true;               // --no-weld: false (the loader's weld, as in core)
   OocOptions options;
+  std::string job_name;           // prefixes this job's governor owners
+  uint64_t job_budget = 0;        // bytes of the governor's capacity to reserve; 0: all of it
+};
+nlohmann::json run_ooc_job(engine::Governor& governor, const OocJob& job, const engine::JobHooks& hooks);
+
+// The whole `qemflow simplify IN OUT` out-of-core command: the allocator tuned, a
+// governor for the process (budget, measured baseline), the progress bar, run_ooc_job
+// (alone: all of the capacity), the report file and the summary on stderr.
+struct OocCommand : OocJob {
+  std::filesystem::path report_path;
+  uint64_t mem_budget = 0;  // 0: half the physical memory
+  bool quiet = false;
   std::shared_ptr<engine::CancelToken> cancel;  // may be empty (the CLI's: interrupt.hpp)
 };
 nlohmann::json run_ooc_command(const OocCommand& command);

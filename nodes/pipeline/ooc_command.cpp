@@ -1,5 +1,6 @@
-// run_ooc_command: the out-of-core `qemflow simplify` wired in one function (as
-// engine/reencode.cpp does for --ratio 1): governor, job, scratch, load, epochs, write.
+// run_ooc_job: the out-of-core simplify wired in one function (as engine/reencode.cpp
+// does for --ratio 1): reservation, job, scratch, load, epochs, write; and
+// run_ooc_command, the CLI's process around it (allocator, governor, progress bar).
 #include <unistd.h>
 
 #include <cstdio>
@@ -38,18 +39,15 @@ uint64_t baseline_bytes() {
 
 }  // namespace
 
-nlohmann::json run_ooc_command(const OocCommand& command) {
-  engine::tune_allocator();
-  uint64_t budget = command.mem_budget;
-  if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
-  const uint64_t baseline = baseline_bytes();
-  engine::require_budget_for_load(budget, baseline);
-  engine::Governor governor(budget, baseline);
-  engine::ProgressBar bar(command.quiet);
+nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, const engine::JobHooks& hooks) {
+  const std::unique_ptr<engine::Governor> own = engine::reserve_for_job(shared, command.job_name, command.job_budget, hooks);
+  engine::Governor& governor = *own;
+  engine::require_budget_for_load(governor.budget(), governor.baseline());
   engine::JobSettings settings;
   settings.threads = command.threads;
   settings.trace_events = command.trace_path.empty() ? 0 : (1 << 18);
-  engine::Job job(governor, {.progress = bar.callback(), .cancel = command.cancel}, settings);
+  settings.owner_prefix = command.job_name;
+  engine::Job job(governor, hooks, settings);
   nlohmann::json report;
   engine::run_then_write_trace(job, command.trace_path, [&] {
     std::error_code ec;
@@ -132,6 +130,20 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
   });
+  return report;
+}
+
+nlohmann::json run_ooc_command(const OocCommand& command) {
+  engine::tune_allocator();
+  uint64_t budget = command.mem_budget;
+  if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
+  const uint64_t baseline = baseline_bytes();
+  engine::require_budget_for_load(budget, baseline);
+  engine::Governor governor(budget, baseline);
+  engine::ProgressBar bar(command.quiet);
+  OocJob alone = command;
+  alone.job_budget = 0;  // all of the capacity: the CLI's one job
+  const nlohmann::json report = run_ooc_job(governor, alone, {.progress = bar.callback(), .cancel = command.cancel});
   bar.finish();
   if (!command.report_path.empty()) engine::write_json(command.report_path, report);
   if (!command.quiet) {

@@ -7,6 +7,7 @@
 #include <chrono>
 #include <thread>
 
+#include "engine/job.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -189,6 +190,87 @@ TEST(Governor, ObserverSeesEveryChange) {
     Lease b = governor.try_acquire("b", 20);
   }
   EXPECT_EQ(seen, (std::vector<uint64_t>{10, 30, 10, 0}));
+}
+
+// A job's own governor (engine/governor.hpp, jobs side by side): its capacity is the
+// reservation, held from the parent until it is gone; its leases never touch the parent.
+TEST(Governor, AJobsGovernorGrantsFromItsReservationAlone) {
+  Governor shared(1000, 100);
+  {
+    Governor own(shared, "job0/job", 600);
+    EXPECT_EQ(own.capacity(), 600u);
+    EXPECT_EQ(own.budget(), 700u);  // the parent's baseline + the reservation
+    EXPECT_EQ(shared.in_use(), 600u);
+    Lease a = own.try_acquire("job0/patch", 600);
+    ASSERT_TRUE(a);
+    EXPECT_FALSE(own.try_acquire("job0/more", 1));
+    EXPECT_EQ(shared.in_use(), 600u);
+    EXPECT_THROW(own.require_fits("x", 601), Error);
+  }
+  EXPECT_EQ(shared.in_use(), 0u);
+  ASSERT_EQ(shared.owners().size(), 1u);
+  EXPECT_EQ(shared.owners()[0].owner, "job0/job");
+  // More than the parent could ever hold: refused up front, naming a budget.
+  try {
+    Governor own(shared, "job1/job", 901);
+    ADD_FAILURE() << "a reservation over the capacity was granted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::resource);
+    EXPECT_NE(std::string(e.what()).find("minimum budget"), std::string::npos) << e.what();
+  }
+}
+
+// The second reservation waits, holding nothing, until the first is given back; a stop
+// ends the wait with Error(cancelled).
+TEST(Governor, AReservationThatDoesNotFitBesideAnotherWaitsForIt) {
+  Governor shared(1000, 0);
+  auto first = std::make_unique<Governor>(shared, "a/job", 700);
+  std::atomic<bool> granted{false};
+  std::thread second([&] {
+    Governor own(shared, "b/job", 700);
+    granted = true;
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_FALSE(granted.load());
+  first.reset();
+  second.join();
+  EXPECT_TRUE(granted.load());
+  EXPECT_EQ(shared.peak_in_use(), 700u);
+
+  Lease all = shared.try_acquire("host", 1000);
+  std::atomic<bool> stop{false};
+  std::thread cancelled([&] {
+    try {
+      Governor own(shared, "c/job", 10, [&] { return stop.load(); });
+      ADD_FAILURE() << "granted while everything was held";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::cancelled);
+    }
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  stop = true;
+  shared.wake_all();
+  cancelled.join();
+}
+
+// The peak-RSS window (job.hpp) resets the process's VmHWM only for a job alone in its
+// process's governor (jobs on a reserved governor count in the root), and measures
+// nothing when another job was alive at its end or started in between.
+TEST(Governor, APeakWindowIsMeasuredOnlyForAJobAlone) {
+  Governor shared(256ull << 20, 0);
+  Governor own(shared, "a/job", 64ull << 20);
+  {
+    Job alone(own, {}, {.threads = 1});
+    EXPECT_EQ(shared.jobs_alive(), 1);
+    EXPECT_GT(SoleJobPeakWindow(own).peak(), 0u);
+    SoleJobPeakWindow window(own);
+    { Job other(shared, {}, {.threads = 1}); }
+    EXPECT_EQ(window.peak(), 0u);  // another job ran in it
+    Job other(shared, {}, {.threads = 1});
+    EXPECT_EQ(SoleJobPeakWindow(own).peak(), 0u);  // not opened beside another job
+  }
+  EXPECT_EQ(shared.jobs_alive(), 0);
+  EXPECT_EQ(shared.jobs_started(), 3u);
 }
 
 }  // namespace
