@@ -1421,21 +1421,26 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     if (falive_[f] && (!owned_only || fowned_.empty() || fowned_[f])) faces.push_back({fgid_[f], fv_[f]});
   for (size_t i = 0; i < passthrough_.size(); ++i)
     if (!owned_only || passthrough_owned_[i]) faces.push_back({passthrough_gids_[i], passthrough_[i]});
-  tbb::parallel_sort(faces.begin(), faces.end(),
-                     [](const auto& x, const auto& y) { return x.first < y.first; });
+  // Face and vertex gids are unique: the radix sorts give the comparison sorts' order
+  // (the vertices' one compared gids through vgid_, a cache miss per comparison).
+  radix_sort_by_key(faces, [](const auto& x) { return x.first; });
   std::vector<uint8_t> used(pos_.size(), 0);
   for (const auto& f : faces)
     for (uint32_t v : f.second) used[v] = 1;
-  std::vector<uint32_t> verts;
+  std::vector<std::pair<uint64_t, uint32_t>> by_gid;
   for (uint32_t v = 0; v < pos_.size(); ++v)
-    if (used[v]) verts.push_back(v);
-  std::sort(verts.begin(), verts.end(), [&](uint32_t a, uint32_t b) { return vgid_[a] < vgid_[b]; });
+    if (used[v]) by_gid.push_back({vgid_[v], v});
+  radix_sort_by_key(by_gid, [](const auto& x) { return x.first; });
+  std::vector<uint32_t> verts(by_gid.size());
+  for (size_t i = 0; i < by_gid.size(); ++i) verts[i] = by_gid[i].second;
+  release_memory(by_gid);
   std::vector<uint32_t> remap(pos_.size(), kNone);
   out.positions.reserve(verts.size());
   out.vertex_gids.reserve(verts.size());
   out.quadrics.reserve(verts.size());
   out.locked.reserve(verts.size());
   out.degrees.reserve(verts.size());
+  out.trusted.reserve(verts.size());
   for (uint32_t i = 0; i < verts.size(); ++i) {
     const uint32_t v = verts[i];
     remap[v] = i;

@@ -37,6 +37,15 @@ uint64_t baseline_bytes() {
   return bytes;
 }
 
+// Raw state chunks (40-byte faces, 136-byte vertex records with quadrics) take several
+// times the re-encode's raw estimate (4x a PLY's bytes, 10x a .zst's). Peak scratch raw,
+// against the input file: the 1M and 5M blobs 12.4x and 11.9x (zstd 6.8x, 6.4x), a
+// 300k blob in random face order 27.6x (zstd 7.3x), the dragon .ply.zst 36.5x. The
+// store goes raw only with room for 7x the estimate (28x a PLY, 70x a .zst); zstd -1
+// on those frames was a tenth of the demo's CPU (encoded in the export, decoded in
+// every gather).
+constexpr uint64_t kRawStateFactor = 7;
+
 }  // namespace
 
 nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, const engine::JobHooks& hooks) {
@@ -54,10 +63,13 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     const uint64_t input_bytes = std::filesystem::file_size(command.input, ec);
     if (ec) throw Error(ErrorKind::bad_input, command.input.string() + ": cannot read: " + ec.message());
     // State chunks carry quadrics: several times the block size at the first epochs.
-    engine::ScratchStore scratch(command.scratch_dir,
-                                 2 * engine::expected_scratch_bytes(input_bytes, command.input.extension() == ".zst"));
+    const bool zstd_input = command.input.extension() == ".zst";
+    engine::ScratchStore scratch(command.scratch_dir, 2 * engine::expected_scratch_bytes(input_bytes, zstd_input),
+                                 kRawStateFactor * engine::expected_raw_scratch_bytes(input_bytes, zstd_input),
+                                 engine::ScratchCodec::automatic);
     // Frames (blocks, state chunks) in the store's codec: raw when the scratch disk has
-    // room (zstd of quadrics and ids costs more CPU than the bytes it saves).
+    // room (zstd of quadrics and ids costs more CPU than the bytes it saves), which the
+    // two-argument store never chose (it is zstd always).
     engine::DefaultFrameCodec codec_scope(scratch.codec());
     struct DrainIo {
       engine::Job& job;
@@ -127,6 +139,7 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     for (size_t i = 0; i < OocStats::kPhases; ++i)
       report["patch_phases"][OocStats::kPhaseNames[i]] = {{"seconds", st.phase_wall[i]}, {"cpu_seconds", st.phase_cpu[i]}};
     engine::report_scratch(report, scratch);
+    report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
   });
