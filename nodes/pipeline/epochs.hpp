@@ -255,6 +255,9 @@ struct OocJob {
   OocOptions options;
   std::string job_name;           // prefixes this job's governor owners
   uint64_t job_budget = 0;        // bytes of the governor's capacity to reserve; 0: all of it
+  // --scratch-codec: automatic is raw frames when the scratch directory has room for
+  // them (ooc_command.cpp, kRawStateFactor), else zstd -1; raw or zstd forces one.
+  engine::ScratchCodec scratch_codec = engine::ScratchCodec::automatic;
 };
 nlohmann::json run_ooc_job(engine::Governor& governor, const OocJob& job, const engine::JobHooks& hooks);
 

@@ -66,10 +66,10 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     const bool zstd_input = command.input.extension() == ".zst";
     engine::ScratchStore scratch(command.scratch_dir, 2 * engine::expected_scratch_bytes(input_bytes, zstd_input),
                                  kRawStateFactor * engine::expected_raw_scratch_bytes(input_bytes, zstd_input),
-                                 engine::ScratchCodec::automatic);
-    // Frames (blocks, state chunks) in the store's codec: raw when the scratch disk has
-    // room (zstd of quadrics and ids costs more CPU than the bytes it saves), which the
-    // two-argument store never chose (it is zstd always).
+                                 command.scratch_codec);
+    // Frames (blocks, state chunks) in the store's codec: by default raw when the
+    // scratch disk has room (zstd of quadrics and ids costs more CPU than the bytes it
+    // saves on a disk this fast), zstd -1 when it has not.
     engine::DefaultFrameCodec codec_scope(scratch.codec());
     struct DrainIo {
       engine::Job& job;

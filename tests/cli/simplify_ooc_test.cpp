@@ -223,6 +223,28 @@ TEST(SimplifyOoc, SameBytesWithOneThread) {
   EXPECT_TRUE(file_bytes(dir / "t1.ply") == file_bytes(dir / "t2.ply"));
 }
 
+TEST(SimplifyOoc, RawAndZstdScratchGiveTheSameBytes) {
+  // The default codec is raw wherever the scratch disk has room (every other test here):
+  // zstd state chunks, the codec of a short disk, must carry the same state.
+  TempDir dir;
+  const auto mesh = generate(dir, "--faces 12000");
+  for (const char* codec : {"raw", "zstd"}) {
+    const auto r = simplify_with_report(
+        dir, mesh, std::string("--target-faces 301 --clusters 4 --in-core-faces 3000 --double --scratch-codec ") + codec);
+    EXPECT_EQ(r["scratch_codec"], codec);
+    EXPECT_GT(r["out_of_core_epochs"].get<int>(), 1);
+    std::filesystem::rename(dir / "out.ply", dir / (std::string(codec) + ".ply"));
+  }
+  EXPECT_TRUE(file_bytes(dir / "raw.ply") == file_bytes(dir / "zstd.ply"));
+  std::string out;
+  EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "x.ply").string() +
+                            " --ratio 0.1 --scratch-codec lz4 --quiet",
+                        &out),
+            2)
+      << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "x.ply"));
+}
+
 TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
   // 120k faces need ~20 MB in the finish but would get several patches from the budget
   // rule (clusters_for); under a 64M budget the run goes in core at once
