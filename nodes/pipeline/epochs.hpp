@@ -255,9 +255,12 @@ struct OocJob {
   OocOptions options;
   std::string job_name;           // prefixes this job's governor owners
   uint64_t job_budget = 0;        // bytes of the governor's capacity to reserve; 0: all of it
-  // --scratch-codec: automatic is raw frames when the scratch directory has room for
-  // them (ooc_command.cpp, kRawStateFactor), else zstd -1; raw or zstd forces one.
-  engine::ScratchCodec scratch_codec = engine::ScratchCodec::automatic;
+  // --scratch-codec. zstd -1 (DESIGN §2) by default: raw state chunks save about a
+  // tenth of the CPU but take up to ~30x a PLY's bytes on disk (a shuffled 300k blob;
+  // 126x a compressible .zst), and automatic's room check (ooc_command.cpp,
+  // kRawStateFactor) scales with the file's size, not the faces, so it is no bound
+  // (review15: raw filled a disk where zstd fit). raw or automatic on request.
+  engine::ScratchCodec scratch_codec = engine::ScratchCodec::zstd;
 };
 nlohmann::json run_ooc_job(engine::Governor& governor, const OocJob& job, const engine::JobHooks& hooks);
 
