@@ -1134,9 +1134,10 @@ class Loader {
           UninitializedVector<float> xyz(3 * n);
           for (uint64_t i = 0; i < n; ++i)
             for (int k = 0; k < 3; ++k) xyz[3 * i + k] = float(batch.vertices[done + i][k]);
-          item.vertex_frames.emplace_back(c, encode_frame(first, float_vertex_record_size, xyz.data(), n));
+          item.vertex_frames.emplace_back(c, encode_frame(first, float_vertex_record_size, xyz.data(), n, scratch_.codec()));
         } else {
-          item.vertex_frames.emplace_back(c, encode_frame(first, sizeof(Point), batch.vertices.data() + done, n));
+          item.vertex_frames.emplace_back(
+              c, encode_frame(first, sizeof(Point), batch.vertices.data() + done, n, scratch_.codec()));
         }
         done += n;
       }

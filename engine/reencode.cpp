@@ -817,8 +817,6 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     bool zstd_input = options.input.extension() == ".zst";
     ScratchStore scratch(options.scratch_dir, expected_scratch_bytes(input_bytes, zstd_input),
                          expected_raw_scratch_bytes(input_bytes, zstd_input), options.scratch_codec);
-    // The loader encodes some frames with the default codec: the store's, for this run.
-    DefaultFrameCodec codec_for_this_run(scratch.codec());
     // Declared after the store, so destroyed first: no queued scratch write may
     // outlive the store, whatever threw.
     struct DrainIo {

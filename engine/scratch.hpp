@@ -57,11 +57,13 @@ struct FrameCodec {
   bool operator==(const FrameCodec&) const = default;
 };
 // The codec of frames encoded without an explicit one (the `level` argument left at
-// its default): process-wide, zstd -1 unless set. A run sets it for its own length
-// with a DefaultFrameCodec (run_reencode: its ScratchStore's choice); while several
-// are alive (jobs sharing the process) the newest one wins, and when none is left the
-// base (set_default_frame_codec, zstd -1 at start) applies again. Any codec decodes
-// anywhere, so overlapping runs only trade speed for space, never correctness.
+// its default): process-wide, zstd -1 unless set; a DefaultFrameCodec sets it for its
+// own length (while several are alive the newest one wins, and when none is left the
+// base, set_default_frame_codec, applies again). The pipelines never rely on it: every
+// frame they write passes its ScratchStore's codec(), so a job beside another with a
+// different codec writes what its own store checked the disk for (review15;
+// SimplifyOocJobs.AJobWritesItsOwnCodecWhateverTheProcessDefault). Any codec decodes
+// anywhere.
 FrameCodec default_frame_codec();
 void set_default_frame_codec(FrameCodec codec);  // the base
 class DefaultFrameCodec {

@@ -410,7 +410,7 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
 void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta, const Bytes& blob,
                  Lease carried, const char* stage) {
   write_encoded_chunk(job, scratch, state, meta, blob.size(),
-                      std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size())),
+                      std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size(), scratch.codec())),
                       std::move(carried), stage);
 }
 
@@ -440,7 +440,7 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
   tbb::enumerable_thread_specific<std::vector<uint32_t>> stamps(
       [&] { return std::vector<uint32_t>(out.positions.size(), std::numeric_limits<uint32_t>::max()); });
   // Raw frames are made in place: the blob is built inside the frame (no copy).
-  const bool raw = engine::default_frame_codec().raw;
+  const bool raw = scratch.codec().raw;
   std::vector<Made> made;
   for (size_t batch = 0; batch < chunks; batch += kBatch) {
     const size_t n_batch = std::min(kBatch, chunks - batch);
@@ -510,7 +510,7 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           std::memcpy(blob + size, envelope.trailer.data(), envelope.trailer.size());
           made[i].encoded = std::make_shared<Bytes>(std::move(frame));
         } else {
-          made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob, size));
+          made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob, size, scratch.codec()));
         }
       });
     });

@@ -69,9 +69,9 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     engine::ScratchStore scratch(command.scratch_dir, 2 * engine::expected_scratch_bytes(input_bytes, zstd_input),
                                  kRawStateFactor * engine::expected_raw_scratch_bytes(input_bytes, zstd_input),
                                  command.scratch_codec);
-    // Frames (blocks, state chunks) in the store's codec: zstd -1 unless the job asks
-    // for raw (less CPU, about twice the disk) or automatic (OocJob::scratch_codec).
-    engine::DefaultFrameCodec codec_scope(scratch.codec());
+    // Every frame (blocks, vertex windows, state chunks) is encoded with this store's
+    // codec, never a process-wide default: a job beside it with another codec must not
+    // change what this one writes onto a disk checked for its own codec's bytes.
     struct DrainIo {
       engine::Job& job;
       ~DrainIo() { job.io().drain(); }

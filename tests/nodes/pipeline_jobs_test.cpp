@@ -7,6 +7,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <future>
+#include <memory>
 #include <mutex>
 #include <set>
 #include <string>
@@ -15,6 +16,7 @@
 
 #include "engine/governor.hpp"
 #include "engine/job.hpp"
+#include "engine/scratch.hpp"
 #include "gen/generator.hpp"
 #include "io/indexed_mesh.hpp"
 #include "nodes/decimate/simplify.hpp"
@@ -140,6 +142,35 @@ TEST(SimplifyOocJobs, AJobAloneWritesTheInCoreBytes) {
   EXPECT_GT(report["in_core_peak_rss_bytes"].get<uint64_t>(), 0u);  // alone: measured
   EXPECT_TRUE(file_bytes(job.output) == m.small_in_core()) << "output differs from in core";
   EXPECT_EQ(governor.in_use(), 0u);
+}
+
+TEST(SimplifyOocJobs, AJobWritesItsOwnCodecWhateverTheProcessDefault) {
+  // A job's frames follow its own store's codec: another job's codec scope (a re-encode
+  // that went raw beside it) must not make a zstd job write raw frames onto a disk it
+  // checked for zstd's bytes (review15).
+  Meshes& m = meshes();
+  TempDir out;
+  OocJob job = job_for(out, m.small, "codec");
+  job.scratch_codec = engine::ScratchCodec::zstd;
+  // `other_job`: with a raw codec scope opened once this job runs (the newest scope
+  // was the process default's winner).
+  auto written = [&](bool other_job) {
+    engine::Governor governor(128 * MiB, 0);
+    std::unique_ptr<engine::DefaultFrameCodec> other;
+    engine::JobHooks hooks;
+    hooks.progress = [&](auto&&...) {
+      if (other_job && !other) other = std::make_unique<engine::DefaultFrameCodec>(engine::FrameCodec::uncompressed());
+    };
+    const nlohmann::json report = run_ooc_job(governor, job, hooks);
+    EXPECT_EQ(report["scratch_codec"], "zstd");
+    EXPECT_EQ(other != nullptr, other_job);
+    return report["scratch_bytes_written"].get<uint64_t>();
+  };
+  const uint64_t alone = written(false);
+  const uint64_t beside_raw = written(true);
+  EXPECT_GT(alone, 0u);
+  EXPECT_EQ(beside_raw, alone);
+  EXPECT_TRUE(file_bytes(job.output) == m.small_in_core());
 }
 
 // Runs job0 (60k faces) and job1 (100k) on `governor`, each reserving `job_budget`;
