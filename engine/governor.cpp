@@ -196,7 +196,7 @@ Lease Governor::grant_when_free(const std::string& owner, uint64_t min, uint64_t
     lease = grant(record, std::min(max, free), max);
     now = in_use_;
   }
-  if (observer_) observer_(now);
+  notify_observers(now);
   return lease;
 }
 
@@ -227,7 +227,7 @@ void Governor::give_back(void* owner, uint64_t bytes) {
   static_cast<Owner*>(owner)->stats.current -= bytes;
   now = in_use_;
   notify_after_release(lock);  // unlocks
-  if (observer_) observer_(now);
+  notify_observers(now);
 }
 
 bool Governor::take_more(void* owner, uint64_t bytes) {
@@ -246,7 +246,7 @@ bool Governor::take_more(void* owner, uint64_t bytes) {
     record->stats.granted_total += bytes;
     now = in_use_;
   }
-  if (observer_) observer_(now);
+  notify_observers(now);
   return true;
 }
 
@@ -285,6 +285,25 @@ std::vector<OwnerStats> Governor::owners() const {
   std::vector<OwnerStats> result;
   for (const auto& [name, record] : owners_) result.push_back(record.stats);
   return result;
+}
+
+uint64_t Governor::add_observer(std::function<void(uint64_t in_use)> observer) {
+  std::lock_guard lock(observers_mutex_);
+  observers_.emplace_back(++next_observer_, std::move(observer));
+  observed_.store(true, std::memory_order_relaxed);
+  return next_observer_;
+}
+
+void Governor::remove_observer(uint64_t id) {
+  std::lock_guard lock(observers_mutex_);  // waits for a running call
+  std::erase_if(observers_, [id](const auto& entry) { return entry.first == id; });
+  observed_.store(!observers_.empty(), std::memory_order_relaxed);
+}
+
+void Governor::notify_observers(uint64_t in_use) {
+  if (!observed_.load(std::memory_order_relaxed)) return;  // untraced runs take no lock
+  std::lock_guard lock(observers_mutex_);
+  for (const auto& [id, observer] : observers_) observer(in_use);
 }
 
 }  // namespace qemflow::engine

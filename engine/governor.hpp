@@ -142,9 +142,12 @@ class Governor {
   uint64_t jobs_started() const;
   void job_started();
   void job_ended();
-  // Called (outside the lock) with the new in-use total after every change; for
-  // trace counters. Set before any lease exists.
-  void set_observer(std::function<void(uint64_t in_use)> observer) { observer_ = std::move(observer); }
+  // Observers are called (outside the lease lock, one call at a time) with the new
+  // in-use total after every change; for trace counters. Jobs sharing a governor each
+  // add their own (a traced re-encode leases from the shared one directly);
+  // remove_observer returns once no call of it is running, so its captures may go.
+  uint64_t add_observer(std::function<void(uint64_t in_use)> observer);
+  void remove_observer(uint64_t id);
 
  private:
   friend class Lease;
@@ -181,7 +184,11 @@ class Governor {
   uint64_t peak_ = 0;
   std::map<std::string, Owner> owners_;
   std::list<Waiter> waiters_;
-  std::function<void(uint64_t)> observer_;
+  void notify_observers(uint64_t in_use);
+  std::mutex observers_mutex_;  // held while observers run, never with mutex_
+  std::vector<std::pair<uint64_t, std::function<void(uint64_t)>>> observers_;
+  uint64_t next_observer_ = 0;
+  std::atomic<bool> observed_{false};
 };
 
 }  // namespace qemflow::engine

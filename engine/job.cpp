@@ -35,7 +35,8 @@ Job::Job(Governor& governor, JobHooks hooks, JobSettings settings)
   if (trace_.enabled()) {
     trace_lease_ = governor_.acquire(owner("trace"), settings_.trace_events * Trace::bytes_per_event,
                                      settings_.trace_events * Trace::bytes_per_event);
-    governor_.set_observer([this](uint64_t in_use) { trace_.counter("governor bytes in use", double(in_use)); });
+    observer_ = governor_.add_observer(
+        [this](uint64_t in_use) { trace_.counter("governor bytes in use", double(in_use)); });
   }
   io_ = std::make_unique<IoThread>(&trace_, &activity_);
   governor_.job_started();
@@ -53,7 +54,7 @@ Job::~Job() {
   alive_->store(nullptr);
   io_.reset();  // drains: no I/O task may outlive the job
   governor_.job_ended();
-  if (trace_.enabled()) governor_.set_observer({});
+  if (observer_) governor_.remove_observer(observer_);
 }
 
 std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& job_name, uint64_t bytes,

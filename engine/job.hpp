@@ -150,6 +150,7 @@ class Job {
   Trace trace_;
   Activity activity_;
   Lease trace_lease_;
+  uint64_t observer_ = 0;  // its trace counter on the governor (0: untraced)
   tbb::task_arena arena_;
   std::unique_ptr<IoThread> io_;
   std::atomic<bool> stopped_{false};

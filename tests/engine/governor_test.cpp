@@ -184,12 +184,30 @@ TEST(Governor, AReservationIsHandedOutToNodesAndTakenBack) {
 TEST(Governor, ObserverSeesEveryChange) {
   Governor governor(100, 0);
   std::vector<uint64_t> seen;
-  governor.set_observer([&](uint64_t v) { seen.push_back(v); });
+  const uint64_t id = governor.add_observer([&](uint64_t v) { seen.push_back(v); });
   {
     Lease a = governor.try_acquire("a", 10);
     Lease b = governor.try_acquire("b", 20);
   }
   EXPECT_EQ(seen, (std::vector<uint64_t>{10, 30, 10, 0}));
+  governor.remove_observer(id);
+  Lease c = governor.try_acquire("c", 5);
+  EXPECT_EQ(seen.size(), 4u);
+}
+
+// Two traced jobs on one governor (a traced re-encode leases from the shared one): each
+// observer sees every change while it is added, and removing one leaves the other's.
+TEST(Governor, ObserversOfJobsSideBySideAreEachKept) {
+  Governor governor(100, 0);
+  std::vector<uint64_t> first, second;
+  const uint64_t a = governor.add_observer([&](uint64_t v) { first.push_back(v); });
+  const uint64_t b = governor.add_observer([&](uint64_t v) { second.push_back(v); });
+  { Lease x = governor.try_acquire("x", 10); }
+  governor.remove_observer(a);
+  { Lease y = governor.try_acquire("y", 7); }
+  governor.remove_observer(b);
+  EXPECT_EQ(first, (std::vector<uint64_t>{10, 0}));
+  EXPECT_EQ(second, (std::vector<uint64_t>{10, 0, 7, 0}));
 }
 
 // A job's own governor (engine/governor.hpp, jobs side by side): its capacity is the
