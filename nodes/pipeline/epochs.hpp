@@ -14,7 +14,7 @@
 //   trusted (decimator.hpp: trust), so the owned outputs are the global mesh's. The
 //   output (vertices sorted by global id, faces by face id) is written with the same
 //   writer options as the in-core command, so the files are byte-identical.
-// - The mesh state between epochs lives in scratch as chunks: one zstd frame per chunk
+// - The mesh state between epochs lives in scratch as chunks: one frame per chunk (zstd -1, or raw with --scratch-codec raw)
 //   holding face records {fid, 3 vertex gids, owner} and the records of their vertices
 //   {gid, position, quadric, degree, lock, best edge}; every chunk holds faces of one owner.
 // - Best edges carried between passes: a pass's summary (a plain prepare_round) leaves
