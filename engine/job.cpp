@@ -6,24 +6,35 @@
 namespace qemflow::engine {
 
 void CancelToken::cancel() {
-  std::vector<std::function<void()>> callbacks;
+  std::vector<std::pair<uint64_t, std::function<void()>>> callbacks;
   {
     std::lock_guard lock(mutex_);
     if (cancelled_.exchange(true)) return;
     callbacks.swap(callbacks_);
   }
-  for (auto& callback : callbacks) callback();
+  for (auto& [id, callback] : callbacks) callback();
 }
 
-void CancelToken::on_cancel(std::function<void()> callback) {
+uint64_t CancelToken::on_cancel(std::function<void()> callback) {
   {
     std::lock_guard lock(mutex_);
     if (!cancelled_) {
-      callbacks_.push_back(std::move(callback));
-      return;
+      callbacks_.emplace_back(++next_id_, std::move(callback));
+      return next_id_;
     }
   }
   callback();
+  return 0;
+}
+
+void CancelToken::forget(uint64_t id) {
+  std::lock_guard lock(mutex_);
+  std::erase_if(callbacks_, [id](const auto& entry) { return entry.first == id; });
+}
+
+size_t CancelToken::pending() const {
+  std::lock_guard lock(mutex_);
+  return callbacks_.size();
 }
 
 Job::Job(Governor& governor, JobHooks hooks, JobSettings settings)
@@ -42,7 +53,7 @@ Job::Job(Governor& governor, JobHooks hooks, JobSettings settings)
   governor_.job_started();
   alive_ = std::make_shared<std::atomic<Job*>>(this);
   if (hooks_.cancel) {
-    hooks_.cancel->on_cancel([alive = alive_] {
+    cancel_callback_ = hooks_.cancel->on_cancel([alive = alive_] {
       if (Job* job = alive->load()) {
         job->fail(std::make_exception_ptr(Error(ErrorKind::cancelled, "cancelled")));
       }
@@ -55,6 +66,7 @@ Job::~Job() {
   io_.reset();  // drains: no I/O task may outlive the job
   governor_.job_ended();
   if (observer_) governor_.remove_observer(observer_);
+  if (hooks_.cancel && cancel_callback_) hooks_.cancel->forget(cancel_callback_);
 }
 
 std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& job_name, uint64_t bytes,
@@ -68,19 +80,21 @@ std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& j
   };
   auto waiting = std::make_shared<Waiting>();
   waiting->governor = &shared;
-  if (hooks.cancel) {
-    hooks.cancel->on_cancel([waiting] {
-      std::lock_guard lock(waiting->mutex);
-      if (waiting->governor) waiting->governor->wake_all();
-    });
-  }
+  const uint64_t wake = hooks.cancel ? hooks.cancel->on_cancel([waiting] {
+    std::lock_guard lock(waiting->mutex);
+    if (waiting->governor) waiting->governor->wake_all();
+  })
+                                     : 0;
   struct Clear {
     Waiting& waiting;
+    const JobHooks& hooks;
+    uint64_t wake;
     ~Clear() {
+      if (hooks.cancel && wake) hooks.cancel->forget(wake);
       std::lock_guard lock(waiting.mutex);
       waiting.governor = nullptr;
     }
-  } clear{*waiting};
+  } clear{*waiting, hooks, wake};
   return std::make_unique<Governor>(shared, job_name + "job", bytes,
                                     [&] { return hooks.cancel && hooks.cancel->cancelled(); });
 }

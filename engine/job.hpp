@@ -36,13 +36,19 @@ class CancelToken {
  public:
   void cancel();
   bool cancelled() const { return cancelled_.load(std::memory_order_relaxed); }
-  // Called once on cancel (immediately if already cancelled); for wake-ups.
-  void on_cancel(std::function<void()> callback);
+  // Called once on cancel (immediately if already cancelled); for wake-ups. Returns an
+  // id for forget (0 when it ran at once).
+  uint64_t on_cancel(std::function<void()> callback);
+  // Drops a callback that has not run: what registers one forgets it when it ends, so a
+  // token shared by many jobs in turn (a daemon's shutdown token) keeps none of theirs.
+  void forget(uint64_t id);
+  size_t pending() const;  // callbacks registered and not run or forgotten (tests)
 
  private:
   std::atomic<bool> cancelled_{false};
-  std::mutex mutex_;
-  std::vector<std::function<void()>> callbacks_;
+  mutable std::mutex mutex_;
+  uint64_t next_id_ = 0;
+  std::vector<std::pair<uint64_t, std::function<void()>>> callbacks_;
 };
 
 using ProgressCallback = std::function<void(double fraction, const std::string& stage)>;
@@ -159,6 +165,7 @@ class Job {
   std::vector<std::unique_ptr<StageStats>> stages_;
   std::atomic<int64_t> last_progress_ns_{0};
   std::shared_ptr<std::atomic<Job*>> alive_;  // lets a cancel after the job's end do nothing
+  uint64_t cancel_callback_ = 0;              // on hooks_.cancel, forgotten at the end
 };
 
 }  // namespace qemflow::engine

@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <map>
+#include <memory>
 #include <chrono>
 #include <thread>
 
@@ -179,6 +180,23 @@ TEST(Governor, AReservationIsHandedOutToNodesAndTakenBack) {
   EXPECT_EQ(by_name["block writer"].peak, 40u);
   EXPECT_EQ(by_name["loader"].current, 40u);
   EXPECT_EQ(by_name["loader"].peak, 80u);
+}
+
+// A daemon passes one shutdown token to every job it runs: a job, and the wait for its
+// reservation, forget their cancel callbacks when they end, so the token keeps none.
+TEST(Governor, JobsForgetTheirCancelCallbacksWhenTheyEnd) {
+  Governor shared(1000, 100);
+  auto token = std::make_shared<CancelToken>();
+  JobHooks hooks{.progress = {}, .cancel = token};
+  for (int run = 0; run < 3; ++run) {
+    const std::unique_ptr<Governor> own = reserve_for_job(shared, "job/", 300, hooks);
+    EXPECT_EQ(token->pending(), 0u);  // the reservation's wake-up is gone once it is made
+    Job job(*own, hooks, {.threads = 1});
+    EXPECT_EQ(token->pending(), 1u);
+  }
+  EXPECT_EQ(token->pending(), 0u);
+  token->cancel();  // nothing left to call
+  EXPECT_TRUE(token->cancelled());
 }
 
 TEST(Governor, ObserverSeesEveryChange) {
