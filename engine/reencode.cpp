@@ -899,7 +899,6 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     result.report["block_groups_merged"] = in_order.merged;  // of them: a few runs in id order, merged
     result.report["block_groups_sorted"] = in_order.sorted;  // many runs, sorted
     report_scratch(result.report, scratch);
-    result.report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
     result.report["input_bytes"] = input_bytes;
     result.report["output_bytes"] = writer->bytes_written();
     result.summary = format_summary(result.report);

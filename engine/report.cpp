@@ -72,6 +72,7 @@ void report_scratch(nlohmann::json& report, const ScratchStore& scratch) {
   report["scratch_bytes_written"] = scratch.bytes_written();
   report["scratch_bytes_read"] = scratch.bytes_read();
   report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
+  report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
 }
 
 void write_json(const std::filesystem::path& path, const nlohmann::json& json) {

@@ -21,7 +21,8 @@ std::string format_summary(const nlohmann::json& report);
 // Plain file write (the report is not pipeline data); Error(resource) on failure.
 void write_json(const std::filesystem::path& path, const nlohmann::json& json);
 
-// The scratch store's totals: scratch_bytes_written, scratch_bytes_read, scratch_peak_bytes.
+// The scratch store's totals and codec: scratch_bytes_written, scratch_bytes_read,
+// scratch_peak_bytes, scratch_codec ("raw" or "zstd").
 void report_scratch(nlohmann::json& report, const ScratchStore& scratch);
 
 // Runs `body`, then writes the job's trace to `path` (if any) whether body returned or

@@ -140,7 +140,6 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     for (size_t i = 0; i < OocStats::kPhases; ++i)
       report["patch_phases"][OocStats::kPhaseNames[i]] = {{"seconds", st.phase_wall[i]}, {"cpu_seconds", st.phase_cpu[i]}};
     engine::report_scratch(report, scratch);
-    report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
   });
