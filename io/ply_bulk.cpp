@@ -227,17 +227,9 @@ size_t PlyBulkReader::face_record(const char* record, size_t left, uint64_t offs
     throw_bad_input(name_, byte_place(offset),
                     face_name() + " has " + std::to_string(count) + " vertices (a face needs at least 3)");
   }
-  const char* indices = record + list_offset + count_size;
-  for (int64_t i = 0; i < count; ++i) {
-    int64_t index = load_integer<Swap>(list.type, indices + i * index_size);
-    if (index < 0 || uint64_t(index) >= vertex_count_) bad_index(index, offset);
-  }
   if (out.size() < used + size_t(count)) out.resize(2 * out.size() + size_t(count));
   PolygonFan fan;
-  for (int64_t i = 0; i < count; ++i) {
-    fan.add(uint64_t(load_integer<Swap>(list.type, indices + i * index_size)),
-            [&](uint64_t a, uint64_t b, uint64_t c) { out.set(used++, a, b, c); });
-  }
+  fan_indices<Swap>(fan, list.type, record + list_offset + count_size, size_t(count), offset, out, used);
   ++faces_done_;
   return length;
 }
@@ -248,18 +240,26 @@ void PlyBulkReader::bad_index(int64_t index, uint64_t offset) const {
                       " but the file has " + std::to_string(vertex_count_) + " vertices");
 }
 
+// Checks `count` indices of `type` at p and adds them to `fan`, its triangles at
+// out[used...] (room made by the caller); `offset` is their record's, for errors.
+template <bool Swap, class Out>
+void PlyBulkReader::fan_indices(PolygonFan& fan, PlyType type, const char* p, size_t count, uint64_t offset,
+                                Out& out, size_t& used) const {
+  const size_t index_size = size_of(type);
+  for (size_t i = 0; i < count; ++i) {
+    int64_t index = load_integer<Swap>(type, p + i * index_size);
+    if (index < 0 || uint64_t(index) >= vertex_count_) bad_index(index, offset);
+    fan.add(uint64_t(index), [&](uint64_t a, uint64_t b, uint64_t c) { out.set(used++, a, b, c); });
+  }
+}
+
 // `count` whole indices of the streamed polygon at p, its triangles appended at out[used...].
 template <bool Swap, class Out>
 void PlyBulkReader::polygon_indices(const char* p, size_t count, Out& out, size_t& used) {
   const PlyElement& element = header_.elements[*header_.face_element];
   const PlyType type = element.properties[header_.index_property].type;
-  const size_t index_size = size_of(type);
   if (out.size() < used + count) out.resize(std::max(used + count, out.size() + out.size() / 2));
-  for (size_t i = 0; i < count; ++i) {
-    int64_t index = load_integer<Swap>(type, p + i * index_size);
-    if (index < 0 || uint64_t(index) >= vertex_count_) bad_index(index, polygon_offset_);
-    fan_.add(uint64_t(index), [&](uint64_t a, uint64_t b, uint64_t c) { out.set(used++, a, b, c); });
-  }
+  fan_indices<Swap>(fan_, type, p, count, polygon_offset_, out, used);
   polygon_left_ -= count;
   if (polygon_left_ == 0) {
     fan_.reset();

@@ -82,6 +82,9 @@ class PlyBulkReader {
   template <bool Swap, class Out> void decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out);
   template <bool Swap, class Out> size_t face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
                                                      Out& out, size_t& used_triangles);
+  template <bool Swap, class Out>
+  void fan_indices(PolygonFan& fan, PlyType type, const char* p, size_t count, uint64_t offset, Out& out,
+                   size_t& used) const;
   template <bool Swap, class Out> void polygon_indices(const char* p, size_t count, Out& out, size_t& used);
   [[noreturn]] void bad_index(int64_t index, uint64_t offset) const;
   [[noreturn]] void truncated_polygon(size_t found_after) const;

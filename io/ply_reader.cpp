@@ -151,6 +151,17 @@ class PlyReader final : public MeshReader {
   auto emit_into(MeshBatch& batch) {
     return [&batch](uint64_t a, uint64_t b, uint64_t c) { batch.triangles.push_back({a, b, c}); };
   }
+  // Checks `count` binary indices at `indices` and adds them to fan_, its triangles
+  // into the batch; `offset` is their record's, for errors.
+  template <bool Swap>
+  void fan_indices(PlyType type, const char* indices, size_t count, uint64_t offset, MeshBatch& batch) {
+    const size_t index_size = size_of(type);
+    for (size_t i = 0; i < count; ++i) {
+      int64_t index = load_integer<Swap>(type, indices + i * index_size);
+      if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) bad_index(done_, index, offset);
+      fan_.add(static_cast<uint64_t>(index), emit_into(batch));
+    }
+  }
 
   template <bool Swap>
   size_t binary_record_length(const PlyElement& element, const char* p, size_t available,
@@ -272,11 +283,7 @@ class PlyReader final : public MeshReader {
             needed = index_size;
             break;
           }
-          for (size_t i = 0; i < fit; ++i) {
-            int64_t index = load_integer<Swap>(index_type, record + i * index_size);
-            if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) bad_index(done_, index, polygon_offset_);
-            fan_.add(static_cast<uint64_t>(index), emit_into(batch));
-          }
+          fan_indices<Swap>(index_type, record, fit, polygon_offset_, batch);
           used += fit * index_size;
           polygon_left_ -= fit;
           if (polygon_left_ == 0) {
@@ -333,15 +340,7 @@ class PlyReader final : public MeshReader {
         int64_t count = load_integer<Swap>(count_type, record + list_offset);
         check_polygon_size(done_, count, source_.offset() + used);
         const char* indices = record + list_offset + count_size;
-        for (int64_t i = 0; i < count; ++i) {
-          int64_t index = load_integer<Swap>(index_type, indices + i * index_size);
-          if (index < 0 || static_cast<uint64_t>(index) >= vertex_count_) {
-            bad_index(done_, index, source_.offset() + used);
-          }
-        }
-        for (int64_t i = 0; i < count; ++i) {
-          fan_.add(static_cast<uint64_t>(load_integer<Swap>(index_type, indices + i * index_size)), emit_into(batch));
-        }
+        fan_indices<Swap>(index_type, indices, static_cast<size_t>(count), source_.offset() + used, batch);
         fan_.reset();
         used += length;
         ++done_;
