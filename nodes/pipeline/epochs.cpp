@@ -313,7 +313,6 @@ class UniqueVertexRecords {
   size_t mask_ = 0;
 };
 
-// Builds a chunk blob from faces and the (deduplicated) vertex records they use.
 // A blob for `nf` face and `nv` vertex records with its header written; the records
 // go from data() + 16 on, faces first (view_blob's layout).
 Bytes blob_with_header(uint64_t nf, uint64_t nv) {
@@ -323,6 +322,7 @@ Bytes blob_with_header(uint64_t nf, uint64_t nv) {
   return blob;
 }
 
+// Builds a chunk blob from faces and the (deduplicated) vertex records they use.
 Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
   const uint64_t nf = faces.size(), nv = vertices.size();
   Bytes blob = blob_with_header(nf, nv);
