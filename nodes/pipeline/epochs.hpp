@@ -238,9 +238,9 @@ inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {
 //   budget named being the governor's baseline plus the job's reservation.
 // - The output does not depend on the budget or on other jobs (out of core equals in
 //   core): it is the bytes the CLI writes for the same input and options.
-// - Owners in the governors are prefixed with job_name ("job 2/"): the reservation is
-//   job_name + "job" in the shared governor, the stages' leases are in the job's own
-//   (the report's "nodes").
+// - Owners in the governors are prefixed with job_name and "/" (job_name "job 2": "job 2/",
+//   as ReencodeOptions::job_name): the reservation is "job 2/job" in the shared governor,
+//   the stages' leases are in the job's own (the report's "nodes").
 // - Process-wide state is the host's: allocator settings (engine::tune_allocator, which
 //   the CLI calls once) are not touched; the finish resets the process's peak-RSS
 //   mark only while it is the only job alive (OocStats::in_core_peak_rss).
@@ -253,7 +253,7 @@ struct OocJob {
   bool double_precision = false;  // as `--double`
   bool weld = true;               // --no-weld: false (the loader's weld, as in core)
   OocOptions options;
-  std::string job_name;           // prefixes this job's governor owners
+  std::string job_name;           // prefixes this job's governor owners ("job 2": "job 2/patch")
   uint64_t job_budget = 0;        // bytes of the governor's capacity to reserve; 0: all of it
   // --scratch-codec. zstd -1 (DESIGN §2) by default: raw state chunks save about a
   // tenth of the CPU but take up to ~30x a PLY's bytes on disk (a shuffled 300k blob;

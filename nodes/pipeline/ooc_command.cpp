@@ -51,13 +51,15 @@ constexpr uint64_t kRawStateFactor = 7;
 }  // namespace
 
 nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, const engine::JobHooks& hooks) {
-  const std::unique_ptr<engine::Governor> own = engine::reserve_for_job(shared, command.job_name, command.job_budget, hooks);
+  // "job 2" -> owners "job 2/...", as a re-encode's ReencodeOptions::job_name.
+  const std::string prefix = command.job_name.empty() ? std::string() : command.job_name + "/";
+  const std::unique_ptr<engine::Governor> own = engine::reserve_for_job(shared, prefix, command.job_budget, hooks);
   engine::Governor& governor = *own;
   engine::require_budget_for_load(governor.budget(), governor.baseline());
   engine::JobSettings settings;
   settings.threads = command.threads;
   settings.trace_events = command.trace_path.empty() ? 0 : (1 << 18);
-  settings.owner_prefix = command.job_name;
+  settings.owner_prefix = prefix;
   engine::Job job(governor, hooks, settings);
   nlohmann::json report;
   engine::run_then_write_trace(job, command.trace_path, [&] {

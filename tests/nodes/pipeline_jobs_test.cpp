@@ -50,7 +50,7 @@ OocJob job_for(const TempDir& dir, const std::filesystem::path& input, const std
   job.scratch_dir = dir.path();
   job.threads = 1;
   job.double_precision = true;
-  job.job_name = name + "/";
+  job.job_name = name;
   job.options.simplify.ratio = 0.02;
   job.options.partition.clusters = 4;
   job.options.in_core_faces = 45000;
@@ -191,7 +191,7 @@ void expect_two_jobs_run(engine::Governor& governor, uint64_t job_budget,
   for (const auto& o : governor.owners()) owners.insert(o.owner);
   EXPECT_EQ(owners, (std::set<std::string>{"job0/job", "job1/job"}));
   for (size_t j = 0; j < 2; ++j) {
-    expect_owners_prefixed(reports[j], jobs[j].job_name);
+    expect_owners_prefixed(reports[j], jobs[j].job_name + "/");
     EXPECT_LE(reports[j]["governor_peak_bytes"].get<uint64_t>(), job_budget);
   }
   EXPECT_TRUE(file_bytes(jobs[0].output) == m.small_in_core()) << "job0's output differs from alone / in core";
