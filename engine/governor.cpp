@@ -110,7 +110,7 @@ Governor::Governor(Governor& parent, const std::string& owner, uint64_t bytes, c
     : budget_(parent.baseline() + bytes),
       baseline_(parent.baseline()),
       parent_(&parent),
-      reservation_(parent.acquire(owner, bytes, bytes, stop)) {
+      reservation_(parent.admit(owner, bytes, stop)) {
   if (bytes == 0) throw Error(ErrorKind::usage, owner + ": a job's reservation of 0 bytes");
   if (!reservation_) throw Error(ErrorKind::cancelled, "cancelled");
 }
@@ -198,6 +198,41 @@ Lease Governor::grant_when_free(const std::string& owner, uint64_t min, uint64_t
   }
   notify_observers(now);
   return lease;
+}
+
+Lease Governor::admit(const std::string& owner, uint64_t bytes, const std::function<bool()>& stop) {
+  require_fits(owner, bytes);
+  Lease lease;
+  uint64_t now = 0;
+  {
+    std::unique_lock lock(mutex_);
+    Owner* record = owner_record(owner);
+    const uint64_t ticket = next_admission_++;
+    admissions_.push_back(ticket);
+    bool denied = false;
+    while (admissions_.front() != ticket || capacity() - in_use_ < bytes) {
+      if (!denied) ++record->stats.denials;
+      denied = true;
+      if (stop && stop()) {
+        admissions_.remove(ticket);
+        lock.unlock();
+        released_.notify_all();  // the reservation behind may be first now
+        return {};
+      }
+      released_.wait(lock);
+    }
+    admissions_.pop_front();
+    lease = grant(record, bytes, bytes);
+    now = in_use_;
+  }
+  released_.notify_all();  // the next reservation in line may fit beside this one
+  notify_observers(now);
+  return lease;
+}
+
+size_t Governor::queued_reservations() const {
+  std::lock_guard lock(mutex_);
+  return admissions_.size();
 }
 
 Lease Governor::try_acquire_partial(const std::string& owner, uint64_t min, uint64_t max) {

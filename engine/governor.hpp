@@ -92,7 +92,12 @@ class Governor {
   // give a lone run this capacity: the budget its error messages name). Throws
   // Error(resource) up front if `bytes` can never fit the parent (naming the parent's
   // minimum budget), Error(cancelled) if `stop` returns true while it waits
-  // (parent.wake_all() wakes the wait). Must be destroyed before the parent.
+  // (parent.wake_all() wakes the wait). Reservations are admitted in the order they
+  // were asked for: one that would fit waits behind an earlier one that does not, so a
+  // job that needs the whole budget is not starved by a stream of smaller ones. Only
+  // reservations queue; leases taken directly from the parent (a running job's, or
+  // run_reencode's) are granted whenever they fit, so a running job never waits behind
+  // a job that waits for it. Must be destroyed before the parent.
   Governor(Governor& parent, const std::string& owner, uint64_t bytes, const std::function<bool()>& stop = {});
   Governor(const Governor&) = delete;
   Governor& operator=(const Governor&) = delete;
@@ -132,6 +137,8 @@ class Governor {
 
   // Runs every pending notify callback and wakes blocked acquires (e.g. on cancel).
   void wake_all();
+  // Reservations (the reserving constructor) waiting for their turn or their bytes.
+  size_t queued_reservations() const;
 
   std::vector<OwnerStats> owners() const;
 
@@ -168,6 +175,8 @@ class Governor {
   void* record_for(const std::string& owner);
   bool take_more(void* owner, uint64_t bytes);
   void notify_after_release(std::unique_lock<std::mutex>& lock);
+  // The reserving constructor's grant: in arrival order among reservations (FIFO).
+  Lease admit(const std::string& owner, uint64_t bytes, const std::function<bool()>& stop);
 
   Governor* root() { return parent_ ? parent_->root() : this; }
   const Governor* root() const { return parent_ ? parent_->root() : this; }
@@ -184,6 +193,8 @@ class Governor {
   uint64_t peak_ = 0;
   std::map<std::string, Owner> owners_;
   std::list<Waiter> waiters_;
+  std::list<uint64_t> admissions_;  // tickets of the waiting reservations, oldest first
+  uint64_t next_admission_ = 0;
   void notify_observers(uint64_t in_use);
   std::mutex observers_mutex_;  // held while observers run, never with mutex_
   std::vector<std::pair<uint64_t, std::function<void(uint64_t)>>> observers_;

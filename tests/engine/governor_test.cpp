@@ -289,6 +289,77 @@ TEST(Governor, AReservationThatDoesNotFitBesideAnotherWaitsForIt) {
   cancelled.join();
 }
 
+// Waits until `owner` has asked the governor and been refused (it is waiting), or
+// `granted` is set.
+void wait_until_refused(const Governor& governor, const std::string& owner, const std::atomic<bool>& granted) {
+  for (;;) {
+    if (granted.load()) return;
+    for (const auto& o : governor.owners())
+      if (o.owner == owner && o.denials > 0) return;
+    std::this_thread::yield();
+  }
+}
+
+// Reservations are admitted in arrival order: a small one that would fit now waits
+// behind an earlier whole-budget one, which a stream of small jobs would otherwise
+// starve; leases taken directly (a running job's) are not queued.
+TEST(Governor, AReservationThatFitsWaitsBehindAnEarlierOneThatDoesNot) {
+  Governor shared(1000, 0);
+  auto running = std::make_unique<Governor>(shared, "a/job", 500);
+  std::atomic<bool> whole_granted{false}, small_granted{false};
+  std::unique_ptr<Governor> whole_job;
+  std::thread whole([&] {
+    whole_job = std::make_unique<Governor>(shared, "whole/job", 1000);
+    whole_granted = true;
+  });
+  wait_until_refused(shared, "whole/job", whole_granted);
+  std::thread small([&] {
+    Governor own(shared, "small/job", 300);  // 500 are free: it would fit now
+    small_granted = true;
+  });
+  wait_until_refused(shared, "small/job", small_granted);
+  EXPECT_FALSE(small_granted.load()) << "a reservation went ahead of an earlier one";
+  // A running job's own lease from the shared governor is not queued.
+  EXPECT_TRUE(shared.try_acquire("a/extra", 100));
+  running.reset();  // the whole budget is free: the first in line goes
+  whole.join();
+  EXPECT_TRUE(whole_granted.load());
+  EXPECT_FALSE(small_granted.load());
+  EXPECT_EQ(shared.queued_reservations(), 1u);
+  whole_job.reset();
+  small.join();
+  EXPECT_TRUE(small_granted.load());
+  EXPECT_EQ(shared.queued_reservations(), 0u);
+  EXPECT_EQ(shared.peak_in_use(), 1000u);
+}
+
+// A cancelled reservation leaves the queue: the one behind it is not held up.
+TEST(Governor, ACancelledReservationLeavesTheLine) {
+  Governor shared(1000, 0);
+  auto running = std::make_unique<Governor>(shared, "a/job", 500);
+  std::atomic<bool> stop{false}, cancelled{false}, small_granted{false};
+  std::thread whole([&] {
+    try {
+      Governor own(shared, "whole/job", 1000, [&] { return stop.load(); });
+    } catch (const Error& e) {
+      cancelled = e.kind() == ErrorKind::cancelled;
+    }
+  });
+  wait_until_refused(shared, "whole/job", cancelled);
+  std::thread small([&] {
+    Governor own(shared, "small/job", 300);
+    small_granted = true;
+  });
+  wait_until_refused(shared, "small/job", small_granted);
+  EXPECT_FALSE(small_granted.load());
+  stop = true;
+  shared.wake_all();
+  whole.join();
+  small.join();  // admitted beside the running job once the whole one left the line
+  EXPECT_TRUE(cancelled.load());
+  EXPECT_TRUE(small_granted.load());
+}
+
 // The peak-RSS window (job.hpp) resets the process's VmHWM only for a job alone in its
 // process's governor (jobs on a reserved governor count in the root), and measures
 // nothing when another job was alive at its end or started in between.
