@@ -248,6 +248,40 @@ TEST(SimplifyOoc, RawAndZstdScratchGiveTheSameBytes) {
   EXPECT_FALSE(std::filesystem::exists(dir / "x.ply"));
 }
 
+// --scratch-codec auto goes raw when the scratch disk has kRawStateFactor (7) times
+// expected_raw_scratch_bytes free: 28x a PLY, 70x a .zst (ooc_command.cpp). A run that
+// then needs more than that fills a disk on which zstd would have fitted (ENOSPC,
+// exit 4). Review15: a shuffled 300k PLY at 48M peaked at 28.9x; a lattice grid (a
+// DEM-like heightfield, coordinates on integers) as .ply.zst at 126x its file.
+TEST(SimplifyOoc, RawScratchPeakStaysWithinTheSpaceAutoChecked) {
+  TempDir dir;
+  {
+    SCOPED_TRACE("gen --shuffle, PLY");
+    const auto mesh = generate(dir, "--faces 300000 --shuffle 1");
+    const auto r = simplify_with_report(dir, mesh, "--ratio 0.01 --mem-budget 48M --scratch-codec raw");
+    EXPECT_LE(r["scratch_peak_bytes"].get<uint64_t>(), 28 * std::filesystem::file_size(mesh));
+  }
+  {
+    SCOPED_TRACE("lattice grid, .ply.zst");
+    io::IndexedMesh grid;
+    const uint64_t n = 388;
+    for (uint64_t j = 0; j < n; ++j)
+      for (uint64_t i = 0; i < n; ++i) grid.vertices.push_back({double(i), double(j), double((i * 7 + j * 3) % 5)});
+    for (uint64_t j = 0; j + 1 < n; ++j)
+      for (uint64_t i = 0; i + 1 < n; ++i) {
+        const uint64_t a = j * n + i;
+        grid.triangles.push_back({a, a + 1, a + n});
+        grid.triangles.push_back({a + 1, a + n + 1, a + n});
+      }
+    const auto mesh = dir / "grid.ply.zst";
+    io::WriteOptions write;
+    write.zstd_level = 19;
+    io::write_mesh(mesh, grid, write);
+    const auto r = simplify_with_report(dir, mesh, "--ratio 0.01 --mem-budget 48M --scratch-codec raw");
+    EXPECT_LE(r["scratch_peak_bytes"].get<uint64_t>(), 70 * std::filesystem::file_size(mesh));
+  }
+}
+
 TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
   // 120k faces need ~20 MB in the finish but would get several patches from the budget
   // rule (clusters_for); under a 64M budget the run goes in core at once
