@@ -205,6 +205,22 @@ void require_budget_for_load(uint64_t budget, uint64_t baseline);
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
                             const LoadOptions& options, const LoadHooks& hooks = {});
 
+// What a raw-scratch decision needs of an input before it is read: its vertices and a
+// bound on its triangles (a PLY header counts polygons). Known from the header and the
+// file's size for an uncompressed binary PLY whose elements other than the faces have
+// fixed-size records; nullopt otherwise (a .zst, ascii or OBJ input: the triangles
+// of its polygons are not known before they are read).
+struct InputCountsBound {
+  uint64_t triangles = 0, vertices = 0;
+};
+std::optional<InputCountsBound> input_counts_bound(const std::filesystem::path& input);
+
+// A bound on the raw scratch bytes on disk at once during load_into_blocks of a mesh
+// of `triangles` faces and `vertices` vertices (not triangles_only), in or out of core.
+uint64_t raw_load_scratch_bound(uint64_t triangles, uint64_t vertices);
+// The part of it still on disk when the load returns: the blocks and vertex windows.
+uint64_t raw_loaded_blocks_bound(uint64_t triangles, uint64_t vertices);
+
 // Streams the given frames of `record_size` records through the I/O thread (a stream
 // pass): `transform(header, records, lease)` runs on compute threads concurrently,
 // then `sink` (optional) one at a time, in any order (in frame order, both one at a

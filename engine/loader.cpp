@@ -20,6 +20,7 @@
 #include "io/mesh_file_kind.hpp"
 #include "io/mesh_stream.hpp"
 #include "io/ply_bulk.hpp"
+#include "io/ply_header.hpp"
 #include "util/error.hpp"
 #include "util/hash.hpp"
 #include "util/memory.hpp"
@@ -1842,6 +1843,63 @@ void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& stor
 LoadedMesh load_into_blocks(Job& job, ScratchStore& scratch, const std::filesystem::path& input,
                             const LoadOptions& options, const LoadHooks& hooks) {
   return Loader(job, scratch, input, options, hooks).run();
+}
+
+std::optional<InputCountsBound> input_counts_bound(const std::filesystem::path& input) {
+  const io::MeshFileKind kind = io::mesh_file_kind(input);
+  if (kind.obj || kind.zstd) return std::nullopt;
+  io::ByteSource source(input, false, 1 << 16);
+  const io::PlyHeader header = io::read_ply_header(source);
+  if (header.format == io::MeshFormat::ply_ascii || !header.face_element) return std::nullopt;
+  // The face element's bytes are the body's less the other elements' (fixed records);
+  // each triangle past a polygon's first takes one more index, of at least
+  // index-size bytes, so the body's size bounds the fan (a file of triangles: exact).
+  uint64_t other_bytes = 0;
+  for (size_t e = 0; e < header.elements.size(); ++e) {
+    if (e == *header.face_element) continue;
+    const size_t record = header.elements[e].fixed_record_size();
+    if (record == 0) return std::nullopt;
+    other_bytes += header.elements[e].count * record;
+  }
+  const io::PlyElement& faces = header.elements[*header.face_element];
+  uint64_t least_face = 0, index_size = 0;
+  for (size_t k = 0; k < faces.properties.size(); ++k) {
+    const io::PlyProperty& p = faces.properties[k];
+    if (k == header.index_property) {
+      index_size = io::size_of(p.type);
+      least_face += io::size_of(p.count_type) + 3 * index_size;
+    } else if (p.is_list) {
+      return std::nullopt;
+    } else {
+      least_face += io::size_of(p.type);
+    }
+  }
+  const uint64_t file = std::filesystem::file_size(input);
+  const uint64_t polygons = faces.count;
+  if (index_size == 0 || file < header.byte_count + other_bytes) return std::nullopt;
+  const uint64_t face_bytes = file - header.byte_count - other_bytes;
+  const uint64_t extra = face_bytes > polygons * least_face ? (face_bytes - polygons * least_face) / index_size : 0;
+  return InputCountsBound{polygons + extra, header.elements[header.vertex_element].count};
+}
+
+// Every record the load files, counted as if none were removed (spills go as the
+// load moves on, so this bounds what is on disk at once), at its widest layout: a
+// face is either local (one LocalFace, 32 bytes) or spanning (3 CornerRefs, 48; its
+// LocalFace among the spanning faces, 32; 3 ResolvedCorners, 120), then one block
+// record (a BlockFace, 120); a vertex is a window record (a Point, 24) and a weld
+// record (32). The resident load writes only the blocks. Frame envelopes (56 bytes)
+// come on top: spill frames are flushed buckets of pages, thousands of records, so an
+// eighth more covers them with room to spare.
+uint64_t raw_load_scratch_bound(uint64_t triangles, uint64_t vertices) {
+  const uint64_t spanning = 3 * sizeof(CornerRef) + sizeof(LocalFace) + 3 * sizeof(ResolvedCorner);
+  const uint64_t bytes = triangles * (std::max<uint64_t>(sizeof(LocalFace), spanning) + sizeof(BlockFace)) +
+                         vertices * (sizeof(Point) + sizeof(WeldRecord));
+  return bytes + bytes / 8 + (1 << 20);
+}
+
+uint64_t raw_loaded_blocks_bound(uint64_t triangles, uint64_t vertices) {
+  const uint64_t bytes = triangles * sizeof(BlockFace) + vertices * sizeof(Point);
+  return bytes + bytes / 8 + (1 << 20);
 }
 
 uint64_t loader_minimum_bytes() { return reserve_minimum_bytes() + items_minimum_bytes; }

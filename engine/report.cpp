@@ -68,11 +68,20 @@ std::string format_summary(const nlohmann::json& r) {
   return line;
 }
 
-void report_scratch(nlohmann::json& report, const ScratchStore& scratch) {
+void report_scratch(nlohmann::json& report, ScratchStore& scratch) {
   report["scratch_bytes_written"] = scratch.bytes_written();
   report["scratch_bytes_read"] = scratch.bytes_read();
   report["scratch_peak_bytes"] = scratch.peak_bytes_on_disk();
-  report["scratch_codec"] = scratch.codec().raw ? "raw" : "zstd";
+  // "mixed": an automatic store went raw for some stages and zstd for others.
+  bool any_raw = false, any_zstd = false;
+  nlohmann::json choices = nlohmann::json::array();
+  for (const auto& c : scratch.codec_choices()) {
+    (c.raw ? any_raw : any_zstd) = true;
+    choices.push_back({{"stage", c.stage}, {"codec", c.raw ? "raw" : "zstd"}, {"raw_bound_bytes", c.raw_bytes},
+                       {"free_bytes", c.free_bytes}});
+  }
+  report["scratch_codec"] = any_raw && any_zstd ? "mixed" : any_raw ? "raw" : "zstd";
+  report["scratch_codec_choices"] = choices;
 }
 
 void write_json(const std::filesystem::path& path, const nlohmann::json& json) {

@@ -23,7 +23,7 @@ void write_json(const std::filesystem::path& path, const nlohmann::json& json);
 
 // The scratch store's totals and codec: scratch_bytes_written, scratch_bytes_read,
 // scratch_peak_bytes, scratch_codec ("raw" or "zstd").
-void report_scratch(nlohmann::json& report, const ScratchStore& scratch);
+void report_scratch(nlohmann::json& report, ScratchStore& scratch);
 
 // Runs `body`, then writes the job's trace to `path` (if any) whether body returned or
 // threw: a failed run's trace is the one most worth reading. A trace write error after

@@ -324,24 +324,25 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent, uint64_t expecte
     : ScratchStore(parent, expected_bytes, expected_bytes, ScratchCodec::zstd) {}
 
 ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expected_bytes,
-                           uint64_t expected_raw_bytes, ScratchCodec choice) {
-  std::filesystem::path parent =
-      parent_in.empty() ? std::filesystem::temp_directory_path() : parent_in;
+                           uint64_t expected_raw_bytes, ScratchCodec choice, std::optional<uint64_t> assumed_free)
+    : choice_(choice), assumed_free_(assumed_free) {
+  parent_ = parent_in.empty() ? std::filesystem::temp_directory_path() : parent_in;
+  const std::filesystem::path& parent = parent_;
   std::error_code ec;
   if (!std::filesystem::is_directory(parent, ec)) {
     throw Error(ErrorKind::resource, parent.string() + ": scratch directory does not exist");
   }
-  struct statvfs fs {};
-  bool known = statvfs(parent.c_str(), &fs) == 0;
-  uint64_t free_bytes = known ? uint64_t(fs.f_bavail) * fs.f_frsize : UINT64_MAX;
-  bool raw = choice == ScratchCodec::raw || (choice == ScratchCodec::automatic && free_bytes >= expected_raw_bytes);
+  const uint64_t free_now = free_bytes();
+  const bool known = free_now != UINT64_MAX;
+  bool raw = choice == ScratchCodec::raw || (choice == ScratchCodec::automatic && free_now >= expected_raw_bytes);
   codec_ = raw ? FrameCodec::uncompressed() : FrameCodec::zstd();
+  choices_.push_back({"start", raw, expected_raw_bytes, free_now});
   if (raw) expected_bytes = expected_raw_bytes;
   if (known) {
-    if (free_bytes < expected_bytes) {
+    if (free_now < expected_bytes) {
       throw Error(ErrorKind::resource,
                   parent.string() + ": scratch needs about " + config::format_size(expected_bytes) +
-                      " free but only " + config::format_size(free_bytes) +
+                      " free but only " + config::format_size(free_now) +
                       " is available; choose another --scratch DIR");
     }
   }
@@ -354,6 +355,26 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
                                            (ec ? ": " + ec.message() : std::string()));
     }
   }
+}
+
+uint64_t ScratchStore::free_bytes() {
+  if (assumed_free_) {
+    std::lock_guard lock(mutex_);
+    return *assumed_free_ - std::min(*assumed_free_, on_disk_);
+  }
+  struct statvfs fs {};
+  if (statvfs(parent_.c_str(), &fs) != 0) return UINT64_MAX;
+  return uint64_t(fs.f_bavail) * fs.f_frsize;
+}
+
+bool ScratchStore::choose_codec(uint64_t raw_bytes, const std::string& stage) {
+  if (choice_ != ScratchCodec::automatic) return codec_.raw;
+  const uint64_t free_now = free_bytes();
+  const bool raw = free_now >= raw_bytes;
+  codec_ = raw ? FrameCodec::uncompressed() : FrameCodec::zstd();
+  std::lock_guard lock(mutex_);
+  choices_.push_back({stage, raw, raw_bytes, free_now});
+  return raw;
 }
 
 ScratchStore::~ScratchStore() {

@@ -154,7 +154,8 @@ struct FrameRef {
 
 // What a ScratchStore encodes its frames with. automatic: raw when the directory has
 // room for the raw bytes (expected_raw_bytes), else zstd when it has room for
-// expected_bytes; raw / zstd: forced (each still checked for its own space).
+// expected_bytes, and again at each choose_codec() (a stage whose raw bytes are bounded
+// then); raw / zstd: forced (each still checked for its own space).
 enum class ScratchCodec { automatic, raw, zstd };
 // "auto", "raw", "zstd" (nullopt for anything else).
 std::optional<ScratchCodec> parse_scratch_codec(const std::string& text);
@@ -163,10 +164,35 @@ class ScratchStore {
  public:
   ScratchStore(const std::filesystem::path& parent, uint64_t expected_bytes);
   // expected_bytes: compressed (zstd) estimate; expected_raw_bytes: raw estimate.
+  // `assumed_free`: the disk's free bytes when the store was made, instead of statvfs
+  // (tests: a disk of that size; what the store has on disk is taken off it as it writes).
   ScratchStore(const std::filesystem::path& parent, uint64_t expected_bytes, uint64_t expected_raw_bytes,
-               ScratchCodec choice);
+               ScratchCodec choice, std::optional<uint64_t> assumed_free = std::nullopt);
   // The codec chosen for this store's frames (zstd -1 with the two-argument constructor).
+  // Read by compute threads as they encode: it changes only in choose_codec().
   FrameCodec codec() const { return codec_; }
+  // Automatic stores: the frames written from now on are raw if the disk has
+  // `raw_bytes` free now (a bound on what the stage about to start writes raw, on top
+  // of what is on disk), else zstd; forced ones keep their codec. Call it only where no
+  // frame is being encoded or written (between stages, the I/O thread drained): a stage
+  // writes one codec throughout. Frames self-describe their codec, so earlier frames
+  // of the other codec read as before. `stage` names the choice in the report.
+  // Returns whether the frames will be raw.
+  bool choose_codec(uint64_t raw_bytes, const std::string& stage);
+  // Free bytes of the scratch disk now (statvfs, or assumed_free less what is on disk);
+  // UINT64_MAX when unknown.
+  uint64_t free_bytes();
+  // The choices made: the constructor's ("start") and each choose_codec()'s, with the
+  // raw bound asked for and the free bytes seen (the report's scratch_codec_choices).
+  struct CodecChoice {
+    std::string stage;
+    bool raw = false;
+    uint64_t raw_bytes = 0, free_bytes = 0;
+  };
+  std::vector<CodecChoice> codec_choices() {
+    std::lock_guard lock(mutex_);
+    return choices_;
+  }
   ~ScratchStore();
   ScratchStore(const ScratchStore&) = delete;
   ScratchStore& operator=(const ScratchStore&) = delete;
@@ -210,8 +236,11 @@ class ScratchStore {
   std::filesystem::path path_of(const File& file) const;
   File& file(uint32_t id);
 
-  std::filesystem::path dir_;
+  std::filesystem::path dir_, parent_;
   FrameCodec codec_;
+  ScratchCodec choice_ = ScratchCodec::zstd;
+  std::optional<uint64_t> assumed_free_;
+  std::vector<CodecChoice> choices_;
   std::mutex mutex_;
   std::deque<File> files_;  // a deque: references stay valid as files are added
   uint64_t written_ = 0, read_ = 0, on_disk_ = 0, peak_on_disk_ = 0;

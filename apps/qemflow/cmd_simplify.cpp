@@ -34,7 +34,7 @@ struct SimplifyArgs {
   std::string input, output, report;
   std::string mem_budget, scratch, trace;
   std::string clusters = "auto";
-  std::string scratch_codec;  // empty: each path's default (re-encode auto, out of core zstd)
+  std::string scratch_codec;  // empty: auto (both paths)
   uint64_t in_core_faces = 0;
   std::optional<uint64_t> target_faces;
   std::optional<double> ratio;
@@ -192,9 +192,10 @@ void add_simplify_command(CLI::App& root, Run& run) {
                   "peak memory of the out-of-core run, e.g. 512M, 4G (default: half the RAM)");
   cmd->add_option("--scratch", args->scratch, "directory for scratch files (default: the system temp dir)");
   cmd->add_option("--scratch-codec", args->scratch_codec,
-                  "scratch frames: zstd (the out-of-core default), raw (less CPU, up to ~30x the input file "
-                  "on disk, more for a compressible .zst), auto (raw when the disk has room for an estimate "
-                  "from the file size, which is no bound; the re-encode's default)");
+                  "scratch frames: auto (the default: out of core, raw for each stage whose raw bytes, "
+                  "bounded from the face and vertex counts, fit the free space then, else zstd; the "
+                  "re-encode, raw when the disk has room for an estimate from the file size), raw (less "
+                  "CPU, up to ~1 KB a face on disk out of core), zstd (the least disk)");
   cmd->add_option("--trace", args->trace, "write a Chrome trace-event JSON of the run");
   cmd->add_option("--clusters", args->clusters, "patches of the out-of-core run (default: from the budget)");
   cmd->add_option("--in-core-faces", args->in_core_faces,

@@ -1650,6 +1650,31 @@ struct Runner {
 
 }  // namespace
 
+// A state of `faces` faces in raw frames: chunks of n faces with their distinct
+// vertices' records, at most 3 per face (a soup's, or a shuffled input's first state:
+// a chunk then holds faces that share few corners), and per chunk the blob's counts
+// (16 bytes) and the frame's header and checksum (56). Every chunk holds a face, so
+// 16 + 56 + n (40 + 3 x 136) <= 520 n. The states shrink (a pass keeps owned faces,
+// each patch's once: a halo redo runs before its export), so this bounds every state
+// after a load of `faces` kept faces. It is a worst case (a soup's states are near
+// it), far from a welded mesh's: raw runs peaked at 0.19-0.27 of
+// raw_scratch_peak_bound (190-280 bytes a face: the 1M blob and terrain, the shared
+// meshes) and a shuffled 300k blob at 0.53 (550 bytes a face: its first state's chunks
+// share few corners).
+uint64_t raw_state_bytes_bound(uint64_t faces) {
+  constexpr uint64_t kChunkEnvelope = 16 + engine::frame_header_bytes + sizeof(uint64_t);
+  return faces * (kChunkEnvelope + sizeof(FaceRecord) + 3 * sizeof(VertexRecord));
+}
+
+// On disk at once: the load's files (while it runs), then its blocks and vertex
+// windows beside the first state (the conversion removes them after), then two states
+// (the pass's input and its output; the input goes once the pass is done).
+uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices) {
+  const uint64_t state = raw_state_bytes_bound(faces);
+  return std::max({engine::raw_load_scratch_bound(faces, vertices),
+                   engine::raw_loaded_blocks_bound(faces, vertices) + state, 2 * state});
+}
+
 OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const OocOptions& options) {
   OocResult result;
   OocStats& st = result.stats;
@@ -1696,6 +1721,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
 
   auto state = std::make_unique<MeshState>();
   state->file = scratch.create_file("state-0");
+  scratch.choose_codec(raw_state_bytes_bound(mesh.kept_faces()), "convert");
   // At least ~32 chunks per patch: a gather reads a chunk's runs by their boxes, so
   // chunks much larger than a patch's halo band make small patches
   // (the 1M-face demo's 60K) read several times their own state. Any chunking gives
@@ -1783,6 +1809,9 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
         }
       }
       set_pass_rings(plan.cuts.size(), first);
+      // The state shrinks epoch by epoch: a disk too small for a raw copy of the first
+      // may have room for a later one (and the first, on disk beside it, is counted).
+      scratch.choose_codec(raw_state_bytes_bound(state->faces), "epoch " + std::to_string(st.ooc_epochs + 1));
       auto next = new_state();
       const double done = std::min(1.0, double(st.input_faces - state->faces) /
                                             double(std::max<uint64_t>(1, st.input_faces - st.target_faces)));

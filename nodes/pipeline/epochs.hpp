@@ -14,7 +14,7 @@
 //   trusted (decimator.hpp: trust), so the owned outputs are the global mesh's. The
 //   output (vertices sorted by global id, faces by face id) is written with the same
 //   writer options as the in-core command, so the files are byte-identical.
-// - The mesh state between epochs lives in scratch as chunks: one frame per chunk (zstd -1, or raw with --scratch-codec raw)
+// - The mesh state between epochs lives in scratch as chunks: one frame per chunk (raw, or zstd -1 where --scratch-codec auto finds no room for raw; README)
 //   holding face records {fid, 3 vertex gids, owner} and the records of their vertices
 //   {gid, position, quadric, degree, lock, best edge}; every chunk holds faces of one owner.
 // - Best edges carried between passes: a pass's summary (a plain prepare_round) leaves
@@ -247,6 +247,13 @@ inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {
 // Returns the report (what --report writes; its budget, governor peak and nodes are the
 // job's own, its peak RSS the process's). Throws qemflow::Error (bad_input, resource,
 // cancelled); nothing is left in scratch and no output exists after a failure.
+// Raw scratch bytes, bounded from the record sizes (epochs.cpp): a state of `faces`
+// faces, and everything on disk at once in a run of an input of `faces` triangles and
+// `vertices` vertices. --scratch-codec auto goes raw for a stage only when the disk
+// has room for that stage's bound.
+uint64_t raw_state_bytes_bound(uint64_t faces);
+uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices);
+
 struct OocJob {
   std::filesystem::path input, output, scratch_dir, trace_path;
   int threads = 0;
@@ -255,12 +262,14 @@ struct OocJob {
   OocOptions options;
   std::string job_name;           // prefixes this job's governor owners ("job 2": "job 2/patch")
   uint64_t job_budget = 0;        // bytes of the governor's capacity to reserve; 0: all of it
-  // --scratch-codec. zstd -1 (DESIGN §2) by default: raw state chunks save about a
-  // tenth of the CPU but take up to ~30x a PLY's bytes on disk (a shuffled 300k blob;
-  // 126x a compressible .zst), and automatic's room check (ooc_command.cpp,
-  // kRawStateFactor) scales with the file's size, not the faces, so it is no bound
-  // (review15: raw filled a disk where zstd fit). raw or automatic on request.
-  engine::ScratchCodec scratch_codec = engine::ScratchCodec::zstd;
+  // --scratch-codec. automatic by default: raw frames (about a sixth less CPU than
+  // zstd -1) for each stage whose raw bytes, bounded from the counts
+  // (raw_state_bytes_bound, engine::raw_load_scratch_bound), fit the disk's free space
+  // then; zstd (DESIGN §2) for the others.
+  engine::ScratchCodec scratch_codec = engine::ScratchCodec::automatic;
+  // Tests: the scratch disk's free bytes at the start, instead of statvfs
+  // (QEMFLOW_SCRATCH_FREE for the CLI; ScratchStore's assumed_free).
+  std::optional<uint64_t> scratch_free;
 };
 nlohmann::json run_ooc_job(engine::Governor& governor, const OocJob& job, const engine::JobHooks& hooks);
 

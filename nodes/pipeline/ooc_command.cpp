@@ -37,16 +37,20 @@ uint64_t baseline_bytes() {
   return bytes;
 }
 
-// Raw state chunks (40-byte faces, 136-byte vertex records with quadrics) take several
-// times the re-encode's raw estimate (4x a PLY's bytes, 10x a .zst's). Peak scratch raw,
-// against the input file: the 1M and 5M blobs 12.4x and 11.9x (zstd 6.8x, 6.4x), a
-// 300k blob in random face order 27.6x (zstd 7.3x), the dragon .ply.zst 36.5x. The
-// store goes raw only with room for 7x the estimate (28x a PLY, 70x a .zst); zstd -1
-// on those frames was a tenth of the demo's CPU (encoded in the export, decoded in
-// every gather). This is no bound, so automatic is opt-in (OocJob::scratch_codec):
-// review15 measured 28.9x for a shuffled 300k PLY and 126x for a lattice heightfield
-// .zst, and a raw run filled a disk where zstd fit.
-constexpr uint64_t kRawStateFactor = 7;
+// QEMFLOW_SCRATCH_FREE=BYTES (tests): the scratch disk's free bytes at the start,
+// instead of statvfs, so that --scratch-codec auto's choices can be checked against a
+// small disk without mounting one.
+std::optional<uint64_t> assumed_scratch_free() {
+  const char* text = std::getenv("QEMFLOW_SCRATCH_FREE");
+  if (!text) return std::nullopt;
+  uint64_t bytes = 0;
+  const char* end = text + std::strlen(text);
+  const auto [at, error] = std::from_chars(text, end, bytes);
+  if (error != std::errc() || at != end) {
+    throw Error(ErrorKind::usage, std::string("QEMFLOW_SCRATCH_FREE=") + text + ": not a byte count");
+  }
+  return bytes;
+}
 
 }  // namespace
 
@@ -68,9 +72,22 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     if (ec) throw Error(ErrorKind::bad_input, command.input.string() + ": cannot read: " + ec.message());
     // State chunks carry quadrics: several times the block size at the first epochs.
     const bool zstd_input = command.input.extension() == ".zst";
+    // Raw frames take up to ~30x a PLY's bytes (a shuffled blob) and 126x a compressible
+    // .zst (a lattice heightfield, review15), so no factor of the file's size bounds
+    // them; the record sizes do, given the counts (raw_scratch_peak_bound). Automatic
+    // decides stage by stage: the load from the header's counts (raw only when they
+    // bound the triangles: an uncompressed binary PLY), then the conversion and each
+    // epoch from the state's exact face count, each against the free space then. Raw
+    // was a sixth less CPU on the demo (24.7-25.3 CPU-s against 29.7-33.1; zstd -1 on
+    // the state chunks is encoded in every export and decoded in every gather).
+    const std::optional<engine::InputCountsBound> counts = engine::input_counts_bound(command.input);
+    // Forced raw without a bound is checked against the re-encode's estimate, as before.
+    const uint64_t raw_load_bytes =
+        counts ? engine::raw_load_scratch_bound(counts->triangles, counts->vertices)
+        : command.scratch_codec == engine::ScratchCodec::raw ? engine::expected_raw_scratch_bytes(input_bytes, zstd_input)
+                                                             : UINT64_MAX;
     engine::ScratchStore scratch(command.scratch_dir, 2 * engine::expected_scratch_bytes(input_bytes, zstd_input),
-                                 kRawStateFactor * engine::expected_raw_scratch_bytes(input_bytes, zstd_input),
-                                 command.scratch_codec);
+                                 raw_load_bytes, command.scratch_codec, command.scratch_free);
     // Every frame (blocks, vertex windows, state chunks) is encoded with this store's
     // codec, never a process-wide default: a job beside it with another codec must not
     // change what this one writes onto a disk checked for its own codec's bytes.
@@ -142,6 +159,7 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     for (size_t i = 0; i < OocStats::kPhases; ++i)
       report["patch_phases"][OocStats::kPhaseNames[i]] = {{"seconds", st.phase_wall[i]}, {"cpu_seconds", st.phase_cpu[i]}};
     engine::report_scratch(report, scratch);
+    report["scratch_raw_peak_bound_bytes"] = raw_scratch_peak_bound(mesh.kept_faces(), mesh.vertex_count);
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
   });
@@ -158,6 +176,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
   engine::ProgressBar bar(command.quiet);
   OocJob alone = command;
   alone.job_budget = 0;  // all of the capacity: the CLI's one job
+  if (!alone.scratch_free) alone.scratch_free = assumed_scratch_free();
   const nlohmann::json report = run_ooc_job(governor, alone, {.progress = bar.callback(), .cancel = command.cancel});
   bar.finish();
   if (!command.report_path.empty()) engine::write_json(command.report_path, report);

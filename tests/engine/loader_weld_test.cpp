@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
 #include <map>
 
 #include "engine/blocks.hpp"
@@ -189,3 +190,43 @@ TEST(LoaderWeld, DragonMatchesBruteForce) { check_shared_mesh("stanford-dragon",
 
 }  // namespace
 }  // namespace qemflow::engine
+
+namespace qemflow::testing {
+namespace {
+
+// input_counts_bound: a PLY header counts polygons; the bound on their triangles comes
+// from the body's size (each fan triangle past the first takes one more index). Exact
+// for triangles, at least the fan for polygons, and none where the body's size says
+// nothing (a .zst).
+TEST(InputCountsBound, CoversPolygonFansAndIsExactForTriangles) {
+  TempDir dir;
+  auto write_ply = [&](const std::string& name, const std::vector<std::vector<int32_t>>& polygons) {
+    std::string text = "ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+                       "property float z\nelement face " + std::to_string(polygons.size()) +
+                       "\nproperty list uchar int vertex_indices\nend_header\n";
+    for (int v = 0; v < 5; ++v) {
+      const float xyz[3] = {float(v), float(v * v), 0.f};
+      text.append(reinterpret_cast<const char*>(xyz), sizeof xyz);
+    }
+    for (const auto& p : polygons) {
+      text.push_back(char(p.size()));
+      text.append(reinterpret_cast<const char*>(p.data()), p.size() * sizeof(int32_t));
+    }
+    std::ofstream(dir / name, std::ios::binary) << text;
+    return dir / name;
+  };
+  const auto triangles = engine::input_counts_bound(write_ply("t.ply", {{0, 1, 2}, {0, 2, 3}}));
+  ASSERT_TRUE(triangles);
+  EXPECT_EQ(triangles->triangles, 2u);
+  EXPECT_EQ(triangles->vertices, 5u);
+  const auto mesh = write_ply("p.ply", {{0, 1, 2, 3}, {0, 1, 2, 3, 4}, {1, 2, 3}});  // 2 + 3 + 1 triangles
+  const auto polygons = engine::input_counts_bound(mesh);
+  ASSERT_TRUE(polygons);
+  EXPECT_GE(polygons->triangles, 6u);
+  EXPECT_EQ(io::read_mesh(mesh).triangles.size(), 6u);
+  io::write_mesh(dir / "t.ply.zst", io::read_mesh(mesh));
+  EXPECT_FALSE(engine::input_counts_bound(dir / "t.ply.zst"));
+}
+
+}  // namespace
+}  // namespace qemflow::testing

@@ -209,6 +209,38 @@ TEST(ScratchStore, ChoosesRawWhenTheDirectoryHasRoomForIt) {
   EXPECT_TRUE(std::filesystem::is_empty(tmp.path()));
 }
 
+// An automatic store chooses again at each stage, against the free space then: an
+// assumed disk (tests) loses what the store has on disk; forced codecs never change.
+TEST(ScratchStore, AutomaticChoosesEachStageAgainstTheSpaceLeft) {
+  TempDir tmp;
+  {
+    ScratchStore s(tmp.path(), 1000, 4000, ScratchCodec::automatic, 10000);
+    EXPECT_TRUE(s.codec().raw);
+    EXPECT_EQ(s.free_bytes(), 10000u);
+    const uint32_t f = s.create_file("a");
+    const std::vector<std::byte> bytes(7000);
+    s.append(f, bytes.data(), bytes.size());
+    EXPECT_EQ(s.free_bytes(), 3000u);
+    EXPECT_FALSE(s.choose_codec(4000, "next"));  // 3000 left
+    EXPECT_FALSE(s.codec().raw);
+    EXPECT_TRUE(s.choose_codec(3000, "smaller"));
+    EXPECT_TRUE(s.codec().raw);
+    s.remove(f);
+    EXPECT_EQ(s.free_bytes(), 10000u);
+    const auto choices = s.codec_choices();
+    ASSERT_EQ(choices.size(), 3u);
+    EXPECT_EQ(choices[1].stage, "next");
+    EXPECT_EQ(choices[1].free_bytes, 3000u);
+    EXPECT_FALSE(choices[1].raw);
+  }
+  ScratchStore zstd(tmp.path(), 1000, 4000, ScratchCodec::zstd, 10000);
+  EXPECT_FALSE(zstd.choose_codec(1, "x"));
+  ScratchStore raw(tmp.path(), 1000, 4000, ScratchCodec::raw, 10000);
+  EXPECT_TRUE(raw.choose_codec(uint64_t(1) << 62, "x"));
+  // Too small even for zstd's estimate: refused up front.
+  EXPECT_THROW(ScratchStore(tmp.path(), 20000, 40000, ScratchCodec::automatic, 10000), Error);
+}
+
 TEST(ScratchStore, FilesAreCompleteOnlyWhenFinalizedAndAllGoAtTheEnd) {
   TempDir tmp;
   std::filesystem::path dir;
