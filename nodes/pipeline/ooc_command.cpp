@@ -159,7 +159,9 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     for (size_t i = 0; i < OocStats::kPhases; ++i)
       report["patch_phases"][OocStats::kPhaseNames[i]] = {{"seconds", st.phase_wall[i]}, {"cpu_seconds", st.phase_cpu[i]}};
     engine::report_scratch(report, scratch);
-    report["scratch_raw_peak_bound_bytes"] = raw_scratch_peak_bound(mesh.kept_faces(), mesh.vertex_count);
+    // The load files every input face, the weld's dropped ones too.
+    report["scratch_raw_peak_bound_bytes"] = std::max(raw_scratch_peak_bound(mesh.kept_faces(), mesh.vertex_count),
+                                                      engine::raw_load_scratch_bound(mesh.face_count, mesh.vertex_count));
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
   });
