@@ -34,7 +34,7 @@ struct SimplifyArgs {
   std::string input, output, report;
   std::string mem_budget, scratch, trace;
   std::string clusters = "auto";
-  std::string scratch_codec;  // empty: auto (both paths)
+  std::string scratch_codec = "auto";
   uint64_t in_core_faces = 0;
   std::optional<uint64_t> target_faces;
   std::optional<double> ratio;
@@ -70,18 +70,15 @@ void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
     throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
   const uint64_t mem_budget = args.mem_budget.empty() ? 0 : config::parse_size(args.mem_budget);
-  const std::optional<engine::ScratchCodec> codec =
-      args.scratch_codec.empty() ? std::nullopt : engine::parse_scratch_codec(args.scratch_codec);
-  if (!args.scratch_codec.empty() && !codec)
-    throw Error(ErrorKind::usage, "--scratch-codec must be auto, raw or zstd, not '" + args.scratch_codec + "'");
+  const std::optional<engine::ScratchCodec> codec = engine::parse_scratch_codec(args.scratch_codec);
+  if (!codec) throw Error(ErrorKind::usage, "--scratch-codec must be auto, raw or zstd, not '" + args.scratch_codec + "'");
   if (args.ratio && *args.ratio == 1.0) {
     // --ratio 1 is the re-encode, with --in-core too (then under the machine's budget:
     // resident when it fits), so both give one file: every vertex and face as they are.
     engine::run_reencode_command({.input = args.input, .output = args.output, .scratch_dir = args.scratch,
                                   .trace_path = args.trace, .report_path = args.report,
                                   .mem_budget = args.in_core ? 0 : mem_budget, .threads = args.threads, .quiet = args.quiet,
-                                  .scratch_codec = codec.value_or(engine::ScratchCodec::automatic),
-                                  .cancel = engine::interrupt_token()});
+                                  .scratch_codec = *codec, .cancel = engine::interrupt_token()});
     return;
   }
   if (!args.in_core) {
@@ -89,7 +86,7 @@ void run_simplify(const SimplifyArgs& args) {
     command.input = args.input;
     command.output = args.output;
     command.scratch_dir = args.scratch;
-    if (codec) command.scratch_codec = *codec;
+    command.scratch_codec = *codec;
     command.trace_path = args.trace;
     command.report_path = args.report;
     command.mem_budget = mem_budget;
@@ -192,10 +189,11 @@ void add_simplify_command(CLI::App& root, Run& run) {
                   "peak memory of the out-of-core run, e.g. 512M, 4G (default: half the RAM)");
   cmd->add_option("--scratch", args->scratch, "directory for scratch files (default: the system temp dir)");
   cmd->add_option("--scratch-codec", args->scratch_codec,
-                  "scratch frames: auto (the default: out of core, raw for each stage whose raw bytes, "
+                  "scratch frames: auto (out of core, raw for each stage whose raw bytes, "
                   "bounded from the face and vertex counts, fit the free space then, else zstd; the "
                   "re-encode, raw when the disk has room for an estimate from the file size), raw (less "
-                  "CPU, up to ~1 KB a face on disk out of core), zstd (the least disk)");
+                  "CPU, up to ~1 KB a face on disk out of core), zstd (the least disk)")
+      ->capture_default_str();
   cmd->add_option("--trace", args->trace, "write a Chrome trace-event JSON of the run");
   cmd->add_option("--clusters", args->clusters, "patches of the out-of-core run (default: from the budget)");
   cmd->add_option("--in-core-faces", args->in_core_faces,
