@@ -111,7 +111,6 @@ Governor::Governor(Governor& parent, const std::string& owner, uint64_t bytes, c
       baseline_(parent.baseline()),
       parent_(&parent),
       reservation_(parent.admit(owner, bytes, stop)) {
-  if (bytes == 0) throw Error(ErrorKind::usage, owner + ": a job's reservation of 0 bytes");
   if (!reservation_) throw Error(ErrorKind::cancelled, "cancelled");
 }
 
@@ -201,6 +200,8 @@ Lease Governor::grant_when_free(const std::string& owner, uint64_t min, uint64_t
 }
 
 Lease Governor::admit(const std::string& owner, uint64_t bytes, const std::function<bool()>& stop) {
+  // Before it queues: a refused reservation never waits its turn.
+  if (bytes == 0) throw Error(ErrorKind::usage, owner + ": a job's reservation of 0 bytes");
   require_fits(owner, bytes);
   Lease lease;
   uint64_t now = 0;

@@ -69,7 +69,7 @@ Job::~Job() {
   if (hooks_.cancel && cancel_callback_) hooks_.cancel->forget(cancel_callback_);
 }
 
-std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& job_name, uint64_t bytes,
+std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& owner_prefix, uint64_t bytes,
                                           const JobHooks& hooks) {
   if (bytes == 0) bytes = shared.capacity();
   // A cancel wakes the wait; the callback may fire after the wait (or the shared
@@ -95,7 +95,7 @@ std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& j
       waiting.governor = nullptr;
     }
   } clear{*waiting, hooks, wake};
-  return std::make_unique<Governor>(shared, job_name + "job", bytes,
+  return std::make_unique<Governor>(shared, owner_prefix + "job", bytes,
                                     [&] { return hooks.cancel && hooks.cancel->cancelled(); });
 }
 

@@ -78,9 +78,9 @@ class Job;
 
 // A job's own governor reserved from the shared one (Governor's reserving
 // constructor): `bytes` of its capacity (0: all of it, so the job waits until nothing
-// else holds memory there and then runs alone), owned by `job_name + "job"`. The wait
-// ends with Error(cancelled) when hooks.cancel fires.
-std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& job_name, uint64_t bytes,
+// else holds memory there and then runs alone), owned by `owner_prefix + "job"` ("a/job"
+// for the prefix "a/"). The wait ends with Error(cancelled) when hooks.cancel fires.
+std::unique_ptr<Governor> reserve_for_job(Governor& shared, const std::string& owner_prefix, uint64_t bytes,
                                           const JobHooks& hooks);
 
 // A window over the process's resident high-water mark for one phase of a job. VmHWM is

@@ -1890,16 +1890,17 @@ std::optional<InputCountsBound> input_counts_bound(const std::filesystem::path& 
 // record (32). The resident load writes only the blocks. Frame envelopes (56 bytes)
 // come on top: spill frames are flushed buckets of pages, thousands of records, so an
 // eighth more covers them with room to spare.
+static uint64_t with_frame_envelopes(uint64_t record_bytes) { return record_bytes + record_bytes / 8 + (1 << 20); }
+
 uint64_t raw_load_scratch_bound(uint64_t triangles, uint64_t vertices) {
   const uint64_t spanning = 3 * sizeof(CornerRef) + sizeof(LocalFace) + 3 * sizeof(ResolvedCorner);
   const uint64_t bytes = triangles * (std::max<uint64_t>(sizeof(LocalFace), spanning) + sizeof(BlockFace)) +
                          vertices * (sizeof(Point) + sizeof(WeldRecord));
-  return bytes + bytes / 8 + (1 << 20);
+  return with_frame_envelopes(bytes);
 }
 
 uint64_t raw_loaded_blocks_bound(uint64_t triangles, uint64_t vertices) {
-  const uint64_t bytes = triangles * sizeof(BlockFace) + vertices * sizeof(Point);
-  return bytes + bytes / 8 + (1 << 20);
+  return with_frame_envelopes(triangles * sizeof(BlockFace) + vertices * sizeof(Point));
 }
 
 uint64_t loader_minimum_bytes() { return reserve_minimum_bytes() + items_minimum_bytes; }

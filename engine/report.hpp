@@ -22,7 +22,8 @@ std::string format_summary(const nlohmann::json& report);
 void write_json(const std::filesystem::path& path, const nlohmann::json& json);
 
 // The scratch store's totals and codec: scratch_bytes_written, scratch_bytes_read,
-// scratch_peak_bytes, scratch_codec ("raw" or "zstd").
+// scratch_peak_bytes, scratch_codec ("raw", "zstd", or "mixed" when an automatic store
+// chose both) and scratch_codec_choices (each choice's stage, codec, raw bound, free bytes).
 void report_scratch(nlohmann::json& report, ScratchStore& scratch);
 
 // Runs `body`, then writes the job's trace to `path` (if any) whether body returned or
