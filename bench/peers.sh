@@ -21,8 +21,9 @@ trap 'rm -rf "$work"' EXIT
 mkdir -p "$here/results"
 out="${PEERS_CSV:-$here/results/peers.csv}"
 
-# The peer tool is not part of the CMake build (it links OpenMesh's Decimater and
-# meshoptimizer, which the library does not need).
+# The peer tool links OpenMesh's Decimater and meshoptimizer, which the library does not
+# need: CMake builds build/bench/peer_simplify only when it finds meshoptimizer, so this
+# script compiles its own copy against BUILD_DIR's io library.
 peer="$work/peer_simplify"
 g++ -std=c++20 -O2 -DNDEBUG -I"$repo" "$here/peers/peer_simplify.cpp" "$build/io/libqemflow_io.a" \
   -lOpenMeshTools -lOpenMeshCore -lmeshoptimizer -lzstd -o "$peer"
