@@ -1,6 +1,6 @@
 // Throughput of the mesh generator's core (no file writing): faces per second for
 // each shape, into a sink that only counts, with all threads and with one.
-//   build-gen/bench/gen_bench --benchmark_counters_tabular=true
+//   build/bench/gen_bench --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
 #include <tbb/global_control.h>
 
