@@ -330,7 +330,9 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
   const std::filesystem::path& parent = parent_;
   std::error_code ec;
   if (!std::filesystem::is_directory(parent, ec)) {
-    throw Error(ErrorKind::resource, parent.string() + ": scratch directory does not exist");
+    const bool exists = std::filesystem::exists(parent, ec);
+    throw Error(ErrorKind::resource,
+                parent.string() + (exists ? ": scratch path is not a directory" : ": scratch directory does not exist"));
   }
   const uint64_t free_now = free_bytes();
   const bool known = free_now != UINT64_MAX;

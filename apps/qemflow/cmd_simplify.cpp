@@ -9,6 +9,7 @@
 #include <tbb/global_control.h>
 #include <tbb/info.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
@@ -16,12 +17,15 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "apps/qemflow/commands.hpp"
 #include "engine/process_memory.hpp"
 #include "config/size.hpp"
 #include "engine/interrupt.hpp"
 #include "engine/reencode.hpp"
+#include "engine/trace.hpp"
 #include "nodes/pipeline/epochs.hpp"
 #include "io/indexed_mesh.hpp"
 #include "nodes/decimate/simplify.hpp"
@@ -66,9 +70,39 @@ nodes::SimplifyOptions simplify_options(const SimplifyArgs& args) {
   return options;
 }
 
+// --clusters: "auto" (0: from the budget) or a patch count in [1, kMaxClusters]. Checked
+// here rather than by std::stoul, which took "-3" as 2^64-3 and "x" as an internal error.
+constexpr uint32_t kMaxClusters = 1u << 20;
+uint32_t parse_clusters(const std::string& text) {
+  if (text == "auto") return 0;
+  uint64_t value = 0;
+  const bool digits = !text.empty() && text.size() <= 7 &&
+                      std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; });
+  if (digits) value = std::stoull(text);
+  if (!digits || value < 1 || value > kMaxClusters)
+    throw Error(ErrorKind::usage, "--clusters must be auto or a patch count from 1 to " + std::to_string(kMaxClusters) +
+                                      ", not '" + text + "'");
+  return uint32_t(value);
+}
+
+// The in-core run has no engine job; its trace holds one span per stage on the main
+// thread, so --trace gives a file whatever the mode.
+void write_in_core_trace(const std::string& path, const std::vector<std::pair<const char*, double>>& stage_ends) {
+  engine::Trace trace(stage_ends.size() + 8);
+  trace.name_thread("main");
+  double start_us = 0;
+  for (const auto& [name, end_seconds] : stage_ends) {
+    trace.span(name, start_us, end_seconds * 1e6);
+    start_us = end_seconds * 1e6;
+  }
+  trace.write(path);
+}
+
 void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
     throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
+  if (args.target_faces && *args.target_faces == 0) throw Error(ErrorKind::usage, "--target-faces must be at least 1");
+  if (!args.in_core) parse_clusters(args.clusters);
   const uint64_t mem_budget = args.mem_budget.empty() ? 0 : config::parse_size(args.mem_budget);
   const std::optional<engine::ScratchCodec> codec = engine::parse_scratch_codec(args.scratch_codec);
   if (!codec) throw Error(ErrorKind::usage, "--scratch-codec must be auto, raw or zstd, not '" + args.scratch_codec + "'");
@@ -96,7 +130,7 @@ void run_simplify(const SimplifyArgs& args) {
     command.cancel = engine::interrupt_token();
     auto& o = command.options;
     o.simplify = simplify_options(args);
-    o.partition.clusters = args.clusters == "auto" ? 0 : uint32_t(std::stoul(args.clusters));
+    o.partition.clusters = parse_clusters(args.clusters);
     command.weld = !args.no_weld;
     o.in_core_faces = args.in_core_faces;
     nodes::pipeline::run_ooc_command(command);
@@ -115,6 +149,7 @@ void run_simplify(const SimplifyArgs& args) {
 
   nodes::SimplifyResult result =
       nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), simplify_options(args));
+  const double seconds_simplified = seconds_since(t0);
 
   const auto t1 = std::chrono::steady_clock::now();
   io::IndexedMesh out{std::move(result.points), std::move(result.triangles)};
@@ -124,6 +159,10 @@ void run_simplify(const SimplifyArgs& args) {
   const double seconds_write = seconds_since(t1);
   const double seconds_total = seconds_since(t0);
   const auto& st = result.stats;
+  if (!args.trace.empty())
+    write_in_core_trace(args.trace, {{"read", seconds_read},
+                                     {"simplify", seconds_simplified},
+                                     {"write", seconds_total}});
 
   if (!args.report.empty()) {
     nlohmann::json report = {
@@ -200,7 +239,7 @@ void add_simplify_command(CLI::App& root, Run& run) {
                   "testing: finish in core at this many faces, at most what the budget allows (default: when the mesh fits the budget)");
   cmd->add_flag("--no-weld", args->no_weld, "keep vertices at identical positions apart");
   cmd->add_option("--report", args->report, "write a JSON report to this file");
-  cmd->add_flag("--quiet", args->quiet, "no summary line on stderr");
+  cmd->add_flag("--quiet", args->quiet, "no progress bar and no summary line on stderr");
   cmd->add_flag("--double", args->double_precision, "write double-precision PLY vertices");
   cmd->add_option("--round-fraction", args->epochs.round_fraction,
                   "most faces a non-final round may remove, as a fraction of the current count")

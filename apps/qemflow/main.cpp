@@ -18,6 +18,16 @@ int main(int argc, char** argv) {
   qemflow::cli::add_gen_command(app, run);
   qemflow::cli::add_compare_command(app, run);
   qemflow::cli::add_info_command(app, run);
+  // CLI11 reports a misspelt command as "A subcommand is required"; name it instead.
+  if (argc > 1 && argv[1][0] != '-') {
+    try {
+      app.get_subcommand(argv[1]);
+    } catch (const CLI::OptionNotFound&) {
+      std::fprintf(stderr, "qemflow: unknown command '%s' (commands: simplify, gen, compare, info; see --help)\n",
+                   argv[1]);
+      return qemflow::exit_code(qemflow::ErrorKind::usage);
+    }
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -1,0 +1,79 @@
+// The command line's own checks (DESIGN.md §6): a bad flag value or command is a usage
+// error (exit 2) with a message naming it, a scratch path that is a file is a resource
+// error naming that, and --trace gives a trace file in every mode.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "tests/test_support.hpp"
+
+namespace qemflow::testing {
+namespace {
+
+std::string q() { return cli_path().string(); }
+
+std::filesystem::path small_mesh(const TempDir& dir) {
+  const auto mesh = dir / "blob.ply";
+  std::string out;
+  EXPECT_EQ(run_command(q() + " gen " + mesh.string() + " --faces 2000 --quiet", &out), 0) << out;
+  return mesh;
+}
+
+// Runs `qemflow simplify MESH DIR/out.ply ARGS`; expects `code`, `message` in its output
+// and no output file.
+void expect_simplify_refused(const TempDir& dir, const std::string& args, int code, const std::string& message) {
+  const auto mesh = small_mesh(dir);
+  std::string out;
+  EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " " + args, &out), code)
+      << args << "\n" << out;
+  EXPECT_NE(out.find(message), std::string::npos) << args << "\n" << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply")) << args;
+}
+
+TEST(CliUsage, ClustersMustBeAutoOrAPositiveCount) {
+  TempDir dir;
+  for (const std::string bad : {"x", "-3", "0", "99999999999"})
+    expect_simplify_refused(dir, "--ratio 0.5 --clusters " + bad, 2, "--clusters must be auto or a patch count");
+}
+
+TEST(CliUsage, TargetOfZeroFacesIsRefused) {
+  TempDir dir;
+  expect_simplify_refused(dir, "--target-faces 0", 2, "--target-faces must be at least 1");
+}
+
+TEST(CliUsage, AScratchPathThatIsAFileIsNamedAsSuch) {
+  TempDir dir;
+  const auto file = dir / "not_a_dir";
+  std::ofstream(file) << "x";
+  expect_simplify_refused(dir, "--ratio 0.5 --scratch " + file.string(), 4, "scratch path is not a directory");
+}
+
+TEST(CliUsage, AnUnknownCommandIsNamed) {
+  std::string out;
+  EXPECT_EQ(run_command(q() + " frobnicate x", &out), 2) << out;
+  EXPECT_NE(out.find("unknown command 'frobnicate'"), std::string::npos) << out;
+}
+
+TEST(CliUsage, InCoreRunWritesATraceOfItsStages) {
+  TempDir dir;
+  const auto mesh = small_mesh(dir);
+  const auto trace = dir / "t.json";
+  std::string out;
+  ASSERT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() +
+                            " --ratio 0.5 --in-core --quiet --trace " + trace.string(),
+                        &out),
+            0)
+      << out;
+  const auto json = nlohmann::json::parse(file_bytes(trace));
+  std::string names;
+  for (const auto& e : json["traceEvents"])
+    if (e["ph"] == "X") names += e["name"].get<std::string>() + " ";
+  EXPECT_EQ(names, "read simplify write ");
+}
+
+}  // namespace
+}  // namespace qemflow::testing
