@@ -4,6 +4,7 @@
 #include <exception>
 
 #include "apps/qemflow/commands.hpp"
+#include "config/config_file.hpp"
 #include "engine/interrupt.hpp"
 #include "util/error.hpp"
 
@@ -18,6 +19,7 @@ int main(int argc, char** argv) {
   qemflow::cli::add_gen_command(app, run);
   qemflow::cli::add_compare_command(app, run);
   qemflow::cli::add_info_command(app, run);
+  qemflow::config::add_config_option(app);
   // CLI11 reports a misspelt command as "A subcommand is required"; name it instead.
   if (argc > 1 && argv[1][0] != '-') {
     try {

@@ -77,3 +77,49 @@ TEST(CliUsage, InCoreRunWritesATraceOfItsStages) {
 
 }  // namespace
 }  // namespace qemflow::testing
+
+namespace qemflow::testing {
+namespace {
+
+// --config FILE (DESIGN §5): a TOML file of the command's flag values.
+TEST(CliConfig, FlagValuesComeFromTheFileAndTheCommandLineWins) {
+  TempDir dir;
+  const auto mesh = small_mesh(dir);
+  const auto config = dir / "job.toml";
+  std::ofstream(config) << "ratio = 0.1\nmem_budget = \"64M\"\nquiet = true\nthreads = 1\n";
+  const auto run = [&](const std::string& extra) {
+    std::string out;
+    EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " --config " +
+                              config.string() + " --report " + (dir / "r.json").string() + extra,
+                          &out),
+              0)
+        << out;
+    EXPECT_EQ(out, "") << "quiet = true";
+    return nlohmann::json::parse(file_bytes(dir / "r.json"));
+  };
+  auto r = run("");
+  EXPECT_EQ(r["output_faces"], 200);
+  EXPECT_EQ(r["budget_bytes"], 64ull << 20);
+  EXPECT_EQ(r["threads"], 1);
+  r = run(" --ratio 0.2 --mem-budget 80M");
+  EXPECT_EQ(r["output_faces"], 400);
+  EXPECT_EQ(r["budget_bytes"], 80ull << 20);
+}
+
+TEST(CliConfig, AFileThatIsNotFlagsIsAUsageErrorNamingItsLine) {
+  TempDir dir;
+  const auto config = dir / "job.toml";
+  const std::pair<std::string, std::string> cases[] = {
+      {"ratio = 0.1\nfrob = 3\n", "job.toml: line 2, column 1: 'frob' is not a flag of qemflow simplify"},
+      {"ratio = 0.1\nmem-budget = [1, 2]\n", "job.toml: line 2, column 1: 'mem-budget' must be a string"},
+      {"ratio = 0.1\n[simplify]\n", "job.toml: line 2, column 2: [simplify] is a table"},
+      {"ratio = 0.1\nmem-budget = \"4G\n", "job.toml: line 2, column"},
+  };
+  for (const auto& [text, message] : cases) {
+    std::ofstream(config) << text;
+    expect_simplify_refused(dir, "--config " + config.string(), 2, message);
+  }
+}
+
+}  // namespace
+}  // namespace qemflow::testing
