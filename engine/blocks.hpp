@@ -172,6 +172,9 @@ struct LoadedMesh {
   VertexStore vertices;
   uint64_t input_bytes = 0;
   bool out_of_core = false;
+  // Some spill of the load had fewer than two pages per bucket, so its frames may hold
+  // a record each (BucketSpill::small_frames; raw_load_scratch_bound).
+  bool small_spill_frames = false;
   uint64_t local_faces = 0;   // out of core: faces resolved with two chunks loaded
   uint64_t corner_faces = 0;  // out of core: faces resolved corner by corner
   Lease resident_lease;  // covers vertices.resident while it is held
@@ -217,9 +220,12 @@ std::optional<InputCountsBound> input_counts_bound(const std::filesystem::path& 
 
 // A bound on the raw scratch bytes on disk at once during load_into_blocks of a mesh
 // of `triangles` faces and `vertices` vertices (not triangles_only), in or out of core.
-uint64_t raw_load_scratch_bound(uint64_t triangles, uint64_t vertices);
+// `small_frames`: some spill of the load may write frames of a record or two
+// (LoadedMesh::small_spill_frames; the load decides it, and --scratch-codec auto's
+// choice for the load with it, once its spills are sized).
+uint64_t raw_load_scratch_bound(uint64_t triangles, uint64_t vertices, bool small_frames);
 // The part of it still on disk when the load returns: the blocks and vertex windows.
-uint64_t raw_loaded_blocks_bound(uint64_t triangles, uint64_t vertices);
+uint64_t raw_loaded_blocks_bound(uint64_t triangles, uint64_t vertices, bool small_frames);
 
 // Streams the given frames of `record_size` records through the I/O thread (a stream
 // pass): `transform(header, records, lease)` runs on compute threads concurrently,

@@ -4,6 +4,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <initializer_list>
 #include <limits>
 #include <optional>
 #include <unordered_map>
@@ -566,6 +567,23 @@ class Loader {
     return take(owner, std::min(bytes, std::max(min, reserve_.bytes())));
   }
 
+  // A spill sized for fewer pages than buckets may write frames of a record or two,
+  // past the eighth raw_load_scratch_bound allows for their envelopes (review16: up to
+  // 1.28x). Once such a spill is made, and before it writes, an automatic store that
+  // went raw on that bound chooses again against the bound that counts an envelope a
+  // record (`triangles`, `vertices`: the load's counts, or a bound on them;
+  // UINT64_MAX when unknown). It can only go from raw to zstd; forced codecs stay.
+  void note_spill_frames(std::initializer_list<const BucketSpill*> spills, uint64_t triangles, uint64_t vertices,
+                         const char* stage) {
+    bool small = false;
+    for (const BucketSpill* spill : spills) small = small || (spill && spill->small_frames());
+    if (!small || mesh_.small_spill_frames) return;
+    mesh_.small_spill_frames = true;
+    if (!scratch_.codec().raw) return;
+    const bool known = triangles != UINT64_MAX && vertices != UINT64_MAX;
+    scratch_.choose_codec(known ? raw_load_scratch_bound(triangles, vertices, true) : UINT64_MAX, stage);
+  }
+
   // Reads with `read`: the whole input (default), its vertices or its faces.
   StreamPass<InputItem> input_pass(bool (InputStream::*read)(InputItem&, Lease&) = &InputStream::read) {
     StreamPass<InputItem> pass;
@@ -822,6 +840,10 @@ class Loader {
     if (block_lease.bytes() == 0) block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
     blocks = std::make_unique<BucketSpill>(job_, scratch_, "blocks", record_size, std::move(block_lease),
                                            mesh_.grid.count(), "load");
+    // Only the blocks are written: with an envelope apiece they stay within the eighth
+    // the load's bound gives the widest out-of-core records, so no new choice (but the
+    // report's bound on the blocks left on disk counts them).
+    if (blocks->small_frames()) mesh_.small_spill_frames = true;
   }
 
   // The resident load's face pass: faces resolved against the resident positions
@@ -1117,6 +1139,11 @@ class Loader {
       spanning.emplace(job_, scratch_, "spanning-faces", sizeof(LocalFace),
                        spill_lease("spanning faces", 0.05, sizeof(LocalFace)), 1, "load");
     }
+    {
+      const std::optional<InputCountsBound> counts = input_counts_bound(input_.path);
+      note_spill_frames({&local, &corners, weld_spill ? &*weld_spill : nullptr}, counts ? counts->triangles : UINT64_MAX,
+                        counts ? counts->vertices : UINT64_MAX, "load");
+    }
     VertexFrameWriter vertex_writer(job_, scratch_, mesh_.vertices);
     uint64_t vertex_count = 0, face_count = 0, max_index = 0;
     std::optional<StageTimer> timer(std::in_place, job_, "load");
@@ -1351,6 +1378,7 @@ class Loader {
     }
     BucketSpill blocks(job_, scratch_, "blocks-local", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "resolve");
+    note_spill_frames({resolved ? &*resolved : nullptr, &blocks}, face_count, mesh_.vertex_count, "resolve");
     // Float-exact triangle-only loads (the re-encode) keep the pair as the frames'
     // floats: half the memory the face lookups wander over, no widening, and the
     // chunk goes to hooks_.float_vertices as it is. Others widen to Points.
@@ -1520,6 +1548,7 @@ class Loader {
 
     BucketSpill spanning_blocks(job_, scratch_, "blocks-spanning", choose_block_layout(),
                        spill_lease("block writer", 0.3, sizeof(BlockFace)), mesh_.grid.count(), "assemble");
+    note_spill_frames({&spanning_blocks}, mesh_.face_count, mesh_.vertex_count, "assemble");
     // Slots for every face of a range (only spanning faces fill theirs), made once for
     // the largest range and filled range after range: fresh slots per range were
     // fresh pages, most of a shuffled input's page faults. So are the frame buffers
@@ -1887,20 +1916,35 @@ std::optional<InputCountsBound> input_counts_bound(const std::filesystem::path& 
 // face is either local (one LocalFace, 32 bytes) or spanning (3 CornerRefs, 48; its
 // LocalFace among the spanning faces, 32; 3 ResolvedCorners, 120), then one block
 // record (a BlockFace, 120); a vertex is a window record (a Point, 24) and a weld
-// record (32). The resident load writes only the blocks. Frame envelopes (56 bytes)
-// come on top: spill frames are flushed buckets of pages, thousands of records, so an
-// eighth more covers them with room to spare.
-static uint64_t with_frame_envelopes(uint64_t record_bytes) { return record_bytes + record_bytes / 8 + (1 << 20); }
+// record (32). The resident load writes only the blocks.
+//
+// Frame envelopes (a raw frame's header and checksum, 56 bytes) come on top. Where
+// every spill of the load holds two pages per bucket (!small_frames), a flush's frames
+// average half a page or more (BucketSpill::small_frames: the envelopes are under 6%
+// of the records) and the finish adds at most one frame per page held, 56 bytes per
+// 2 KiB of the spills' leases, which an out-of-core load's records outweigh many times
+// over: an eighth more covers both. Where a spill has fewer pages than that (the
+// loader's "not paged" case, face ranges or grid blocks outnumbering their spill's
+// pages; review16: frames of 1-3 records, a peak 1.19-1.28x the eighth's bound), a
+// frame may hold a single record: every record is then counted with an envelope of
+// its own, which no frame can exceed.
+constexpr uint64_t frame_envelope_bytes = frame_header_bytes + sizeof(uint64_t);
+static uint64_t with_frame_envelopes(uint64_t record_bytes, uint64_t records, bool small_frames) {
+  return small_frames ? record_bytes + records * frame_envelope_bytes + (1 << 20)
+                      : record_bytes + record_bytes / 8 + (1 << 20);
+}
 
-uint64_t raw_load_scratch_bound(uint64_t triangles, uint64_t vertices) {
+uint64_t raw_load_scratch_bound(uint64_t triangles, uint64_t vertices, bool small_frames) {
   const uint64_t spanning = 3 * sizeof(CornerRef) + sizeof(LocalFace) + 3 * sizeof(ResolvedCorner);
   const uint64_t bytes = triangles * (std::max<uint64_t>(sizeof(LocalFace), spanning) + sizeof(BlockFace)) +
                          vertices * (sizeof(Point) + sizeof(WeldRecord));
-  return with_frame_envelopes(bytes);
+  // Records: a spanning face's 3 + 1 + 3 and its block record; a vertex's two.
+  return with_frame_envelopes(bytes, triangles * 8 + vertices * 2, small_frames);
 }
 
-uint64_t raw_loaded_blocks_bound(uint64_t triangles, uint64_t vertices) {
-  return with_frame_envelopes(triangles * sizeof(BlockFace) + vertices * sizeof(Point));
+uint64_t raw_loaded_blocks_bound(uint64_t triangles, uint64_t vertices, bool small_frames) {
+  return with_frame_envelopes(triangles * sizeof(BlockFace) + vertices * sizeof(Point), triangles + vertices,
+                              small_frames);
 }
 
 uint64_t loader_minimum_bytes() { return reserve_minimum_bytes() + items_minimum_bytes; }

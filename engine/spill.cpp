@@ -37,6 +37,7 @@ BucketSpill::BucketSpill(Job& job, ScratchStore& scratch, std::string name, uint
       name_(std::move(name)),
       stage_(stage),
       record_size_(record_size),
+      expected_buckets_(std::max<uint32_t>(expected_buckets, 1)),
       lease_(std::move(lease)) {
   if (lease_.bytes() < min_lease_bytes(record_size)) {
     throw Error(ErrorKind::internal, name_ + ": spill lease below its minimum");

@@ -78,6 +78,12 @@ class BucketSpill {
   uint64_t max_bucket_records() const;
   uint64_t max_frame_records() const { return max_frame_records_; }
   uint64_t max_frame_bytes() const { return max_frame_bytes_; }
+  // Whether frames can hold as little as one record: fewer than two pages per
+  // expected bucket (a lease sized for fewer buckets than it files, records in random
+  // bucket order). Otherwise a flush at the page limit takes the fullest buckets, which
+  // hold two pages each on average, so its frames average at least half a page (2 KiB
+  // pages at the least: the 56-byte frame envelope is under 6% of what they hold).
+  bool small_frames() const { return page_limit_ < 2 * uint64_t(expected_buckets_); }
 
  private:
   struct Bucket {
@@ -102,6 +108,7 @@ class BucketSpill {
   std::string name_;
   const char* stage_;  // the report's stage these writes belong to
   uint32_t record_size_;
+  uint32_t expected_buckets_;
   Lease lease_;
   size_t page_bytes_;
   uint64_t page_limit_;  // pages allowed in memory

@@ -1669,10 +1669,10 @@ uint64_t raw_state_bytes_bound(uint64_t faces) {
 // On disk at once: the load's files (while it runs), then its blocks and vertex
 // windows beside the first state (the conversion removes them after), then two states
 // (the pass's input and its output; the input goes once the pass is done).
-uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices) {
+uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices, bool small_load_frames) {
   const uint64_t state = raw_state_bytes_bound(faces);
-  return std::max({engine::raw_load_scratch_bound(faces, vertices),
-                   engine::raw_loaded_blocks_bound(faces, vertices) + state, 2 * state});
+  return std::max({engine::raw_load_scratch_bound(faces, vertices, small_load_frames),
+                   engine::raw_loaded_blocks_bound(faces, vertices, small_load_frames) + state, 2 * state});
 }
 
 OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const OocOptions& options) {

@@ -250,9 +250,9 @@ inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {
 // Raw scratch bytes, bounded from the record sizes (epochs.cpp): a state of `faces`
 // faces, and everything on disk at once in a run of an input of `faces` triangles and
 // `vertices` vertices. --scratch-codec auto goes raw for a stage only when the disk
-// has room for that stage's bound.
+// has room for that stage's bound. `small_load_frames`: LoadedMesh::small_spill_frames.
 uint64_t raw_state_bytes_bound(uint64_t faces);
-uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices);
+uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices, bool small_load_frames);
 
 struct OocJob {
   std::filesystem::path input, output, scratch_dir, trace_path;

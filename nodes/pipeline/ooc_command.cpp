@@ -81,9 +81,11 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     // was a sixth less CPU on the demo (24.7-25.3 CPU-s against 29.7-33.1; zstd -1 on
     // the state chunks is encoded in every export and decoded in every gather).
     const std::optional<engine::InputCountsBound> counts = engine::input_counts_bound(command.input);
+    // The load chooses again (zstd) if its spills turn out to have small frames
+    // (LoadedMesh::small_spill_frames), against the bound that counts them.
     // Forced raw without a bound is checked against the re-encode's estimate, as before.
     const uint64_t raw_load_bytes =
-        counts ? engine::raw_load_scratch_bound(counts->triangles, counts->vertices)
+        counts ? engine::raw_load_scratch_bound(counts->triangles, counts->vertices, false)
         : command.scratch_codec == engine::ScratchCodec::raw ? engine::expected_raw_scratch_bytes(input_bytes, zstd_input)
                                                              : UINT64_MAX;
     engine::ScratchStore scratch(command.scratch_dir, 2 * engine::expected_scratch_bytes(input_bytes, zstd_input),
@@ -159,9 +161,12 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     for (size_t i = 0; i < OocStats::kPhases; ++i)
       report["patch_phases"][OocStats::kPhaseNames[i]] = {{"seconds", st.phase_wall[i]}, {"cpu_seconds", st.phase_cpu[i]}};
     engine::report_scratch(report, scratch);
-    // The load files every input face, the weld's dropped ones too.
-    report["scratch_raw_peak_bound_bytes"] = std::max(raw_scratch_peak_bound(mesh.kept_faces(), mesh.vertex_count),
-                                                      engine::raw_load_scratch_bound(mesh.face_count, mesh.vertex_count));
+    // The load files every input face, the weld's dropped ones too; with an envelope a
+    // record where its spills could write frames that small (as its own choice did).
+    const bool small = mesh.small_spill_frames;
+    report["scratch_raw_peak_bound_bytes"] =
+        std::max(raw_scratch_peak_bound(mesh.kept_faces(), mesh.vertex_count, small),
+                 engine::raw_load_scratch_bound(mesh.face_count, mesh.vertex_count, small));
     report["input_bytes"] = input_bytes;
     report["out_of_core_dereference"] = mesh.out_of_core;
   });

@@ -230,3 +230,70 @@ TEST(InputCountsBound, CoversPolygonFansAndIsExactForTriangles) {
 
 }  // namespace
 }  // namespace qemflow::testing
+
+namespace qemflow::engine {
+namespace {
+
+// A 100k-face blob in random order, written to `path`.
+io::IndexedMesh shuffled_blob(const std::filesystem::path& path) {
+  gen::GenOptions g;
+  g.faces = 100'000;
+  io::IndexedMesh mesh = gen::generate_in_memory(g);
+  gen::shuffle(mesh, 5);
+  io::write_mesh(path, mesh);
+  return mesh;
+}
+
+// review16: raw_load_scratch_bound adds an eighth for frame envelopes (56 bytes each),
+// taking spill frames to hold thousands of records. Where a spill has far more buckets
+// than pages (an input in random order whose vertex chunks and face ranges outnumber
+// the pages its lease holds: the loader's "not paged" case, a large input near the
+// minimum budget, README), frames hold a few records each and the envelopes outweigh
+// the records: a shuffled 200k blob with 16-64-vertex windows and 64-face ranges at
+// 18-24M peaked at 1.22-1.28x the bound (512-face ranges: 1.07-1.21x); this 100k one at
+// 47.8 MB against 40.2 MB (1.19x). window_vertices and range_faces stand in for the
+// chunk and range counts of a ~20M+-face shuffled input near the minimum budget.
+TEST(LoaderRawScratch, PeakStaysUnderTheLoadBoundWithSmallFrames) {
+  TempDir dir;
+  const io::IndexedMesh mesh = shuffled_blob(dir / "shuffled.ply");
+  Governor governor(18ull << 20, 0);
+  Job job(governor, {}, {.threads = 2});
+  ScratchStore scratch(dir.path(), 0, 0, ScratchCodec::raw);
+  const LoadOptions options{.window_vertices = 64, .range_faces = 64, .force_out_of_core = true};
+  const LoadedMesh loaded = load_into_blocks(job, scratch, dir / "shuffled.ply", options);
+  EXPECT_TRUE(loaded.out_of_core);
+  // fix17: the load tells that its spills could write such frames, and the bound then
+  // counts an envelope a record.
+  EXPECT_TRUE(loaded.small_spill_frames);
+  EXPECT_LE(scratch.peak_bytes_on_disk(),
+            raw_load_scratch_bound(mesh.triangles.size(), mesh.vertices.size(), loaded.small_spill_frames));
+}
+
+// fix17: the same load under --scratch-codec auto, on a disk with room for the eighth's
+// bound (40.2 MB; the store's start choice goes raw on it, as the out-of-core command's
+// does from the header's counts) but not for raw's 47.8 MB: once its spills are sized
+// the load chooses again and goes zstd. (zstd frames of a record or two are no
+// smaller: this load then peaks at 49.5 MB. Auto picks the codec the bounds allow; it
+// cannot make small frames fit a disk.)
+TEST(LoaderRawScratch, AutoGoesZstdWhenSpillFramesAreSmall) {
+  TempDir dir;
+  const io::IndexedMesh mesh = shuffled_blob(dir / "shuffled.ply");
+  Governor governor(18ull << 20, 0);
+  Job job(governor, {}, {.threads = 2});
+  const uint64_t free = 44ull << 20;
+  const uint64_t eighth = raw_load_scratch_bound(mesh.triangles.size(), mesh.vertices.size(), false);
+  ASSERT_LT(eighth, free);
+  ScratchStore scratch(dir.path(), 0, eighth, ScratchCodec::automatic, free);
+  ASSERT_TRUE(scratch.codec().raw);
+  const LoadOptions options{.window_vertices = 64, .range_faces = 64, .force_out_of_core = true};
+  const LoadedMesh loaded = load_into_blocks(job, scratch, dir / "shuffled.ply", options);
+  EXPECT_TRUE(loaded.small_spill_frames);
+  const auto choices = scratch.codec_choices();
+  ASSERT_EQ(choices.size(), 2u);
+  EXPECT_EQ(choices[1].stage, "load");
+  EXPECT_FALSE(choices[1].raw);
+  EXPECT_FALSE(scratch.codec().raw);
+}
+
+}  // namespace
+}  // namespace qemflow::engine
