@@ -208,25 +208,29 @@ Lease Governor::admit(const std::string& owner, uint64_t bytes, const std::funct
   {
     std::unique_lock lock(mutex_);
     Owner* record = owner_record(owner);
-    const uint64_t ticket = next_admission_++;
-    admissions_.push_back(ticket);
+    // The ticket leaves the line however the wait ends, a stop callback that throws
+    // included: left in it, it would hold up every later reservation for good. The
+    // reservation behind may be first now, or fit beside this one: wake it. (Destroyed
+    // before `lock`, so under the mutex.)
+    struct Ticket {
+      std::list<uint64_t>& line;
+      std::condition_variable& released;
+      std::list<uint64_t>::iterator at;
+      ~Ticket() {
+        line.erase(at);
+        released.notify_all();
+      }
+    } ticket{admissions_, released_, admissions_.insert(admissions_.end(), next_admission_++)};
     bool denied = false;
-    while (admissions_.front() != ticket || capacity() - in_use_ < bytes) {
+    while (admissions_.begin() != ticket.at || capacity() - in_use_ < bytes) {
       if (!denied) ++record->stats.denials;
       denied = true;
-      if (stop && stop()) {
-        admissions_.remove(ticket);
-        lock.unlock();
-        released_.notify_all();  // the reservation behind may be first now
-        return {};
-      }
+      if (stop && stop()) return {};
       released_.wait(lock);
     }
-    admissions_.pop_front();
     lease = grant(record, bytes, bytes);
     now = in_use_;
   }
-  released_.notify_all();  // the next reservation in line may fit beside this one
   notify_observers(now);
   return lease;
 }

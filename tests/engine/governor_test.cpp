@@ -6,6 +6,7 @@
 #include <map>
 #include <memory>
 #include <chrono>
+#include <stdexcept>
 #include <thread>
 
 #include "engine/job.hpp"
@@ -358,6 +359,25 @@ TEST(Governor, ACancelledReservationLeavesTheLine) {
   small.join();  // admitted beside the running job once the whole one left the line
   EXPECT_TRUE(cancelled.load());
   EXPECT_TRUE(small_granted.load());
+}
+
+// fix17: a stop callback that throws while its reservation waits (a job's cancel
+// callback, JobHooks::cancel) must take the reservation out of the line too: left in
+// it, its ticket stayed first and every later reservation waited for good.
+TEST(Governor, AReservationWhoseStopThrowsLeavesTheLine) {
+  Governor shared(1000, 0);
+  auto running = std::make_unique<Governor>(shared, "a/job", 500);
+  bool thrown = false;
+  try {
+    Governor own(shared, "whole/job", 1000, []() -> bool { throw std::runtime_error("cancel callback failed"); });
+  } catch (const std::runtime_error&) {
+    thrown = true;
+  }
+  EXPECT_TRUE(thrown);
+  ASSERT_EQ(shared.queued_reservations(), 0u);
+  // The next reservation that fits goes at once.
+  Governor small(shared, "small/job", 300);
+  EXPECT_EQ(shared.in_use(), 800u);
 }
 
 // The peak-RSS window (job.hpp) resets the process's VmHWM only for a job alone in its
