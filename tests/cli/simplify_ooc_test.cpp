@@ -251,6 +251,26 @@ TEST(SimplifyOoc, RawAndZstdScratchGiveTheSameBytes) {
   EXPECT_FALSE(std::filesystem::exists(dir / "x.ply"));
 }
 
+// The two triangles of each cell of an n x n grid of vertices laid row by row from
+// index `first`.
+void add_grid_triangles(io::IndexedMesh& mesh, uint64_t first, uint64_t n) {
+  for (uint64_t j = 0; j + 1 < n; ++j)
+    for (uint64_t i = 0; i + 1 < n; ++i) {
+      const uint64_t a = first + j * n + i;
+      mesh.triangles.push_back({a, a + 1, a + n});
+      mesh.triangles.push_back({a + 1, a + n + 1, a + n});
+    }
+}
+
+// Coordinates in [0, 1) that are floats, so that a PLY of them is exact and loads as floats.
+struct FloatCoordinates {
+  uint64_t state = 1;
+  double operator()() {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return double(float(double(state >> 40) / double(1ull << 24)));
+  }
+};
+
 // The lattice grid of review15: a DEM-like heightfield, coordinates on integers, as a
 // .ply.zst (zstd -19) that its raw scratch peaked at 126x.
 std::filesystem::path write_lattice_zst(const TempDir& dir) {
@@ -258,12 +278,7 @@ std::filesystem::path write_lattice_zst(const TempDir& dir) {
   const uint64_t n = 388;
   for (uint64_t j = 0; j < n; ++j)
     for (uint64_t i = 0; i < n; ++i) grid.vertices.push_back({double(i), double(j), double((i * 7 + j * 3) % 5)});
-  for (uint64_t j = 0; j + 1 < n; ++j)
-    for (uint64_t i = 0; i + 1 < n; ++i) {
-      const uint64_t a = j * n + i;
-      grid.triangles.push_back({a, a + 1, a + n});
-      grid.triangles.push_back({a + 1, a + n + 1, a + n});
-    }
+  add_grid_triangles(grid, 0, n);
   const auto mesh = dir / "grid.ply.zst";
   io::WriteOptions write;
   write.zstd_level = 19;
@@ -308,28 +323,41 @@ TEST(SimplifyOoc, RawScratchPeakBoundCountsTheFacesTheWeldDrops) {
   TempDir dir;
   io::IndexedMesh mesh;
   const uint64_t h = 300'000, g = 200;
-  uint64_t state = 1;
-  auto unit = [&] {  // floats, so that the PLY is exact and loads as floats
-    state = state * 6364136223846793005ull + 1442695040888963407ull;
-    return double(float(double(state >> 40) / double(1ull << 24)));
-  };
+  FloatCoordinates unit;
   for (uint64_t i = 0; i < h; ++i) mesh.vertices.push_back({unit(), unit(), unit()});
   for (uint64_t i = 0; i < h; ++i) mesh.vertices.push_back(mesh.vertices[i]);  // i + h welds to i
   for (uint64_t y = 0; y < g; ++y)
     for (uint64_t x = 0; x < g; ++x) mesh.vertices.push_back({double(x) / (g - 1), double(y) / (g - 1), 0.5});
   for (uint64_t i = 0; i < h; ++i)
     for (uint64_t s = 1; s <= 3; ++s) mesh.triangles.push_back({i, i + h, (i + s * 7919) % h});  // dropped
-  for (uint64_t y = 0; y + 1 < g; ++y)
-    for (uint64_t x = 0; x + 1 < g; ++x) {
-      const uint64_t a = 2 * h + y * g + x;
-      mesh.triangles.push_back({a, a + 1, a + g});
-      mesh.triangles.push_back({a + 1, a + g + 1, a + g});
-    }
+  add_grid_triangles(mesh, 2 * h, g);
   const auto path = dir / "dup.ply";
   io::write_mesh(path, mesh);
   const auto r = simplify_with_report(dir, path, "--target-faces 2000 --mem-budget 64M --scratch-codec raw");
   ASSERT_TRUE(r["out_of_core_dereference"].get<bool>());
   EXPECT_LE(r["scratch_peak_bytes"].get<uint64_t>(), r["scratch_raw_peak_bound_bytes"].get<uint64_t>());
+}
+
+// fix17 (review16 LOW): the finish was sized from every input vertex, the
+// unreferenced ones too: a 20k-face grid beside 1M vertices no face uses was refused at
+// 64M ("the in-core finish of 19602 faces ... needs 406.3 MiB"); it goes to the finish
+// at once, sized from the 10k vertices its faces reference.
+TEST(SimplifyOoc, UnreferencedVerticesDoNotSizeTheFinish) {
+  TempDir dir;
+  io::IndexedMesh mesh;
+  const uint64_t g = 100, unreferenced = 1'000'000;
+  for (uint64_t y = 0; y < g; ++y)
+    for (uint64_t x = 0; x < g; ++x) mesh.vertices.push_back({double(x) / (g - 1), double(y) / (g - 1), 0.5});
+  FloatCoordinates unit;
+  for (uint64_t i = 0; i < unreferenced; ++i) mesh.vertices.push_back({unit(), unit(), unit()});
+  add_grid_triangles(mesh, 0, g);
+  const auto path = dir / "unreferenced.ply";
+  io::write_mesh(path, mesh);
+  const auto r = simplify_with_report(dir, path, "--target-faces 2000 --mem-budget 64M");
+  EXPECT_EQ(r["patches"].get<uint64_t>(), 1u);
+  EXPECT_EQ(r["in_core_vertices"].get<uint64_t>(), g * g);
+  EXPECT_EQ(r["output_faces"].get<uint64_t>(), 2000u);
+  expect_out_equals_in_core(dir, path, "--target-faces 2000");
 }
 
 // A scratch disk with room for zstd's scratch but not for raw's (review15's lattice
