@@ -337,8 +337,7 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
   const uint64_t free_now = free_bytes();
   const bool known = free_now != UINT64_MAX;
   bool raw = choice == ScratchCodec::raw || (choice == ScratchCodec::automatic && free_now >= expected_raw_bytes);
-  codec_ = raw ? FrameCodec::uncompressed() : FrameCodec::zstd();
-  choices_.push_back({"start", raw, expected_raw_bytes, free_now});
+  record_choice({"start", raw, expected_raw_bytes, free_now});
   if (raw) expected_bytes = expected_raw_bytes;
   if (known) {
     if (free_now < expected_bytes) {
@@ -373,10 +372,14 @@ bool ScratchStore::choose_codec(uint64_t raw_bytes, const std::string& stage) {
   if (choice_ != ScratchCodec::automatic) return codec_.raw;
   const uint64_t free_now = free_bytes();
   const bool raw = free_now >= raw_bytes;
-  codec_ = raw ? FrameCodec::uncompressed() : FrameCodec::zstd();
-  std::lock_guard lock(mutex_);
-  choices_.push_back({stage, raw, raw_bytes, free_now});
+  record_choice({stage, raw, raw_bytes, free_now});
   return raw;
+}
+
+void ScratchStore::record_choice(CodecChoice choice) {
+  codec_ = choice.raw ? FrameCodec::uncompressed() : FrameCodec::zstd();
+  std::lock_guard lock(mutex_);
+  choices_.push_back(std::move(choice));
 }
 
 ScratchStore::~ScratchStore() {

@@ -234,6 +234,8 @@ class ScratchStore {
     int fd = -1;
   };
   std::filesystem::path path_of(const File& file) const;
+  // Sets the codec the choice names and keeps the choice (the report's).
+  void record_choice(CodecChoice choice);
   File& file(uint32_t id);
 
   std::filesystem::path dir_, parent_;
