@@ -7,7 +7,9 @@
 #include <algorithm>
 #include <atomic>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
+#include <new>
 #include <fstream>
 #include <string>
 
@@ -45,11 +47,20 @@ bool reset_peak_resident() {
   return ok;
 }
 
-void tune_allocator(int trim_threshold, int arenas) {
-  mallopt(M_MMAP_THRESHOLD, 4 << 20);
+namespace {
+// Allocations through operator new of at least this many bytes get huge-page advice
+// (0: none). At or above the mmap threshold, so each is its own mapping.
+std::atomic<size_t> huge_pages_from{0};
+}  // namespace
+
+void tune_allocator(int trim_threshold, int arenas, int mmap_threshold, bool huge_pages) {
+  mallopt(M_MMAP_THRESHOLD, mmap_threshold);
   mallopt(M_TRIM_THRESHOLD, trim_threshold);
   mallopt(M_ARENA_MAX, arenas);
+  huge_pages_from.store(huge_pages ? size_t(mmap_threshold) : 0, std::memory_order_relaxed);
 }
+
+bool huge_pages_on_big_allocations() { return huge_pages_from.load(std::memory_order_relaxed) != 0; }
 
 void trim_allocator() { malloc_trim(0); }
 
@@ -71,3 +82,14 @@ void advise_huge_pages(const void* begin, const void* end) {
 uint64_t measure_baseline(uint64_t margin) { return resident_bytes() + margin; }
 
 }  // namespace qemflow::engine
+
+// Replaces the global operator new (the array and nothrow forms call it; delete frees
+// with free as before) so that tune_allocator's huge-page advice reaches every big
+// std::vector without a change of type. One relaxed load per allocation otherwise.
+void* operator new(std::size_t size) {
+  void* p = std::malloc(size ? size : 1);
+  if (!p) throw std::bad_alloc();
+  const size_t from = qemflow::engine::huge_pages_from.load(std::memory_order_relaxed);
+  if (from && size >= from) qemflow::engine::advise_huge_pages(p, static_cast<char*>(p) + size);
+  return p;
+}

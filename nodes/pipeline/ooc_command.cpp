@@ -174,7 +174,7 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
 }
 
 nlohmann::json run_ooc_command(const OocCommand& command) {
-  engine::tune_allocator();
+  engine::tune_allocator(8 << 20, 1, 2 << 20, true);  // see process_memory.hpp (measured on the demo)
   uint64_t budget = command.mem_budget;
   if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
   const uint64_t baseline = baseline_bytes();
