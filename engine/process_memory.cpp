@@ -9,7 +9,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <new>
 #include <fstream>
 #include <string>
 
@@ -60,7 +59,9 @@ void tune_allocator(int trim_threshold, int arenas, int mmap_threshold, bool hug
   huge_pages_from.store(huge_pages ? size_t(mmap_threshold) : 0, std::memory_order_relaxed);
 }
 
-bool huge_pages_on_big_allocations() { return huge_pages_from.load(std::memory_order_relaxed) != 0; }
+bool huge_pages_on_big_allocations() { return huge_page_advice_from() != 0; }
+
+size_t huge_page_advice_from() { return huge_pages_from.load(std::memory_order_relaxed); }
 
 void trim_allocator() { malloc_trim(0); }
 
@@ -82,14 +83,3 @@ void advise_huge_pages(const void* begin, const void* end) {
 uint64_t measure_baseline(uint64_t margin) { return resident_bytes() + margin; }
 
 }  // namespace qemflow::engine
-
-// Replaces the global operator new (the array and nothrow forms call it; delete frees
-// with free as before) so that tune_allocator's huge-page advice reaches every big
-// std::vector without a change of type. One relaxed load per allocation otherwise.
-void* operator new(std::size_t size) {
-  void* p = std::malloc(size ? size : 1);
-  if (!p) throw std::bad_alloc();
-  const size_t from = qemflow::engine::huge_pages_from.load(std::memory_order_relaxed);
-  if (from && size >= from) qemflow::engine::advise_huge_pages(p, static_cast<char*>(p) + size);
-  return p;
-}

@@ -1,6 +1,7 @@
 #pragma once
 // What the process really holds, from /proc/self/status, and the allocator settings
 // that make freed buffers go back to the OS so that resident memory follows leases.
+#include <cstddef>
 #include <cstdint>
 
 namespace qemflow::engine {
@@ -48,6 +49,11 @@ void tune_allocator(int trim_threshold = 1 << 20, int arenas = 1, int mmap_thres
                     bool huge_pages = false);
 // Whether tune_allocator asked for huge pages on big allocations (for tests).
 bool huge_pages_on_big_allocations();
+// The size from which an allocation should be advised huge pages (0: none). Read by
+// the replacement operator new in apps/qemflow/huge_page_new.cpp, which the CLI links
+// (and the engine's tests); the engine library itself does not replace operator new,
+// so a host keeps its own allocator and links that file only if it wants the advice.
+size_t huge_page_advice_from();
 // Returns freed heap memory to the OS (malloc_trim); cheap enough between passes.
 void trim_allocator();
 

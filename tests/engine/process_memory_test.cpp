@@ -1,5 +1,6 @@
-// tune_allocator's huge-page advice: big allocations through operator new are advised
-// before they are touched, only when asked for (the out-of-core simplify's setting).
+// tune_allocator's huge-page advice: big allocations through the CLI's operator new
+// (apps/qemflow/huge_page_new.cpp, linked into this test too) are advised before they
+// are touched, only when asked for (the out-of-core simplify's setting).
 #include <gtest/gtest.h>
 
 #include <cstdint>
