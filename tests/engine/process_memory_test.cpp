@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <new>
 #include <sstream>
 #include <string>
 
@@ -57,6 +58,31 @@ TEST(ProcessMemory, HugePagesAreAdvisedOnBigAllocationsOnlyWhenAsked) {
   EXPECT_FALSE(huge_pages_on_big_allocations());
   std::unique_ptr<char[]> plain(new char[kBig]);
   EXPECT_FALSE(has_flag(vm_flags_at(plain.get() + kBig / 2), "hg")) << vm_flags_at(plain.get() + kBig / 2);
+}
+
+// review17 (MEDIUM): the replacement operator new must keep the standard's required
+// behaviour ([new.delete.single]): when the allocation fails it calls the current
+// new_handler (a host's: free a cache, an emergency reserve) before throwing. It threw
+// bad_alloc at once; libstdc++'s own operator new calls the handler.
+int new_handler_calls = 0;
+TEST(ProcessMemory, OperatorNewCallsTheNewHandlerBeforeThrowing) {
+  new_handler_calls = 0;
+  const std::new_handler before = std::set_new_handler([] {
+    ++new_handler_calls;
+    std::set_new_handler(nullptr);  // the next failure throws
+  });
+  volatile size_t impossible = SIZE_MAX / 4;  // malloc fails whatever the machine
+  void* p = nullptr;
+  bool threw = false;
+  try {
+    p = ::operator new(impossible);
+  } catch (const std::bad_alloc&) {
+    threw = true;
+  }
+  ::operator delete(p);
+  std::set_new_handler(before);
+  EXPECT_TRUE(threw);
+  EXPECT_EQ(new_handler_calls, 1);
 }
 
 }  // namespace
