@@ -121,5 +121,76 @@ TEST(CliConfig, AFileThatIsNotFlagsIsAUsageErrorNamingItsLine) {
   }
 }
 
+// review17 (MEDIUM): "flags on the command line win" over the file, the target too:
+// a job file's ratio with --target-faces on the command line was refused ("--target-faces
+// excludes --ratio", exit 2), so a shared job file could not be given another target.
+TEST(CliConfig, TheCommandLinesTargetWinsOverTheFilesRatio) {
+  TempDir dir;
+  const auto mesh = small_mesh(dir);
+  const auto config = dir / "job.toml";
+  std::ofstream(config) << "ratio = 0.1\nquiet = true\n";
+  std::string out;
+  ASSERT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "out.ply").string() + " --config " +
+                            config.string() + " --target-faces 500 --report " + (dir / "r.json").string(),
+                        &out),
+            0)
+      << out;
+  EXPECT_EQ(nlohmann::json::parse(file_bytes(dir / "r.json"))["output_faces"], 500);
+}
+
+// review17 (LOW): --config's fallthrough made every root flag a flag of each command:
+// `simplify IN OUT --ratio 0.5 --version` printed the version and exited 0 without
+// simplifying (before --config: exit 2, "--version not expected").
+TEST(CliConfig, TheRootsVersionFlagIsNotACommandFlag) {
+  TempDir dir;
+  expect_simplify_refused(dir, "--ratio 0.5 --version", 2, "--version");
+}
+
+// review17 (LOW): --help answers whatever --config names; the file was read first, so a
+// bad file (or --config with no command) turned a call for help into a usage error.
+TEST(CliConfig, HelpWinsOverTheConfigFile) {
+  TempDir dir;
+  const auto config = dir / "job.toml";
+  std::ofstream(config) << "frob = 3\n";
+  for (const std::string args : {" simplify --help --config ", " --config "}) {
+    std::string out;
+    EXPECT_EQ(run_command(q() + args + config.string() + (args == " --config " ? " --help" : ""), &out), 0)
+        << args << "\n" << out;
+    EXPECT_NE(out.find("Usage:"), std::string::npos) << args << "\n" << out;
+  }
+}
+
+}  // namespace
+}  // namespace qemflow::testing
+
+namespace qemflow::testing {
+namespace {
+
+// review17 (LOW): a negative target, on the command line (`--target-faces -5`, which
+// CLI11 2.1 takes as a value) or from a TOML integer (`target-faces = -5`), went through
+// strtoull as 2^64-5: the input came back unsimplified, exit 0 (what e4871d1 fixed for
+// --clusters '-3').
+TEST(CliUsage, ANegativeTargetIsRefused) {
+  TempDir dir;
+  expect_simplify_refused(dir, "--target-faces -5", 2, "--target-faces");
+  std::filesystem::remove(dir / "out.ply");  // each case on its own
+  expect_simplify_refused(dir, "--target-faces=-5 --in-core", 2, "--target-faces");
+  std::filesystem::remove(dir / "out.ply");
+  const auto config = dir / "job.toml";
+  std::ofstream(config) << "target-faces = -5\n";
+  expect_simplify_refused(dir, "--config " + config.string(), 2, "target-faces");
+}
+
+// review17 (LOW): DESIGN §6, a failed run leaves no output file. A --trace that cannot be
+// written failed the run (exit 4) after the output was renamed into place: new in core
+// with e4871d1 (it exited 0 before), and so out of core too.
+TEST(CliUsage, ATraceThatCannotBeWrittenLeavesNoOutput) {
+  TempDir dir;
+  const std::string trace = " --trace " + (dir / "missing" / "t.json").string();
+  expect_simplify_refused(dir, "--ratio 0.5 --quiet --in-core" + trace, 4, "cannot write the trace");
+  std::filesystem::remove(dir / "out.ply");  // each case on its own
+  expect_simplify_refused(dir, "--ratio 0.5 --quiet" + trace, 4, "cannot write the trace");
+}
+
 }  // namespace
 }  // namespace qemflow::testing
