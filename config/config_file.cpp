@@ -46,6 +46,11 @@ class TomlConfig : public CLI::Config {
       const CLI::Option* option = command_->get_option_no_throw("--" + key);
       if (!option || !option->get_configurable())
         fail(path, at, "'" + std::string(key_view.str()) + "' is not a flag of qemflow " + command_->get_name());
+      // The command line wins: a file value is dropped when it is given there, or when
+      // it excludes a flag given there (the file's ratio beside --target-faces).
+      bool overridden = option->count() > 0;
+      for (const CLI::Option* excluded : option->get_excludes()) overridden = overridden || excluded->count() > 0;
+      if (overridden) continue;
       std::string value;
       // value<T>() converts between kinds (an integer reads as a bool), so test the kind.
       if (node.is_string())
@@ -67,8 +72,9 @@ class TomlConfig : public CLI::Config {
   }
 
  private:
+  // A FileError, which CLI11 reports only after --help had its turn.
   [[noreturn]] static void fail(const std::string& path, const toml::source_position& at, const std::string& problem) {
-    throw CLI::ConfigError(path + ": line " + std::to_string(at.line) + ", column " + std::to_string(at.column) + ": " +
+    throw CLI::FileError(path + ": line " + std::to_string(at.line) + ", column " + std::to_string(at.column) + ": " +
                            problem);
   }
 

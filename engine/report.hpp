@@ -32,6 +32,7 @@ void report_scratch(nlohmann::json& report, ScratchStore& scratch);
 template <class Body>
 void run_then_write_trace(Job& job, const std::filesystem::path& path, Body&& body) {
   if (path.empty()) return body();
+  Trace::check_writable(path);  // before the output exists (DESIGN §6)
   try {
     body();
   } catch (...) {

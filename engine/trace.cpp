@@ -105,6 +105,15 @@ std::string json_string(const std::string& text) {
 }
 }  // namespace
 
+void Trace::check_writable(const std::filesystem::path& path) {
+  std::error_code ec;
+  const bool existed = std::filesystem::exists(path, ec);
+  FILE* file = std::fopen(path.c_str(), "a");  // "a": an existing file keeps its bytes
+  if (!file) throw Error(ErrorKind::resource, path.string() + ": cannot write the trace");
+  std::fclose(file);
+  if (!existed) std::filesystem::remove(path, ec);
+}
+
 void Trace::write(const std::filesystem::path& path) const {
   std::lock_guard lock(mutex_);
   std::unique_ptr<FILE, int (*)(FILE*)> file(std::fopen(path.c_str(), "w"), &std::fclose);

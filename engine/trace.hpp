@@ -69,6 +69,9 @@ class Trace {
 
   // Writes the JSON (plain file I/O: the trace is not part of the pipeline's data).
   void write(const std::filesystem::path& path) const;
+  // Error(resource) now, as write() would throw at the end, if `path` cannot be
+  // written; leaves no file behind. Runs check before their output exists.
+  static void check_writable(const std::filesystem::path& path);
 
  private:
   struct Event {

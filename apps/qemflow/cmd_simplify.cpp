@@ -101,7 +101,6 @@ void write_in_core_trace(const std::string& path, const std::vector<std::pair<co
 void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
     throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
-  if (args.target_faces && *args.target_faces == 0) throw Error(ErrorKind::usage, "--target-faces must be at least 1");
   if (!args.in_core) parse_clusters(args.clusters);
   const uint64_t mem_budget = args.mem_budget.empty() ? 0 : config::parse_size(args.mem_budget);
   const std::optional<engine::ScratchCodec> codec = engine::parse_scratch_codec(args.scratch_codec);
@@ -143,6 +142,8 @@ void run_simplify(const SimplifyArgs& args) {
   // A fixed mmap threshold: big arrays freed early (the input mesh) go back to the
   // system instead of staying in the heap under glibc's growing dynamic threshold.
   engine::tune_allocator();
+  // A trace that cannot be written fails the run before any output exists.
+  if (!args.trace.empty()) engine::Trace::check_writable(args.trace);
   const auto t0 = std::chrono::steady_clock::now();
   io::IndexedMesh mesh = io::read_mesh(args.input);
   const double seconds_read = seconds_since(t0);
@@ -220,6 +221,14 @@ void add_simplify_command(CLI::App& root, Run& run) {
   cmd->add_option("OUT", args->output, "output mesh: .ply (binary), .obj, optionally .zst")->required();
   auto* target = cmd->add_option("--target-faces", args->target_faces, "face count to reach");
   auto* ratio = cmd->add_option("--ratio", args->ratio, "target as a fraction of the input faces");
+  // CLI11 2.1 reads a uint64 with strtoull, which takes "-5" as 2^64-5: check the text.
+  target->check(CLI::Validator(
+      [](std::string& text) -> std::string {
+        const bool digits = !text.empty() && text.find_first_not_of("0123456789") == std::string::npos;
+        if (digits && text.find_first_not_of('0') != std::string::npos) return {};
+        return "must be a face count of at least 1, not '" + text + "'";
+      },
+      "N >= 1"));
   target->excludes(ratio);
   ratio->excludes(target);
   cmd->add_flag("--in-core", args->in_core, "simplify the whole mesh in memory (one patch)");

@@ -12,8 +12,11 @@ int main(int argc, char** argv) {
   // First, before any thread starts: Ctrl-C cancels an out-of-core job cleanly.
   qemflow::engine::install_interrupt_cancel();
   CLI::App app{"qemflow: out-of-core QEM simplification of huge triangle meshes"};
-  app.require_subcommand(1);
-  app.set_version_flag("--version", "qemflow 0.1.0");
+  app.require_subcommand(0, 1);
+  // A plain flag, not set_version_flag: --config's fallthrough would make that one a flag
+  // of every command (`simplify IN OUT --version` printed the version and ran nothing).
+  bool version = false;
+  app.add_flag("--version", version, "print the version and exit");
   qemflow::cli::Run run;
   qemflow::cli::add_simplify_command(app, run);
   qemflow::cli::add_gen_command(app, run);
@@ -36,10 +39,20 @@ int main(int argc, char** argv) {
     return app.exit(e);
   } catch (const CLI::CallForAllHelp& e) {
     return app.exit(e);
-  } catch (const CLI::CallForVersion& e) {
-    return app.exit(e);
   } catch (const CLI::ParseError& e) {
     std::fprintf(stderr, "qemflow: %s\n", e.what());
+    return qemflow::exit_code(qemflow::ErrorKind::usage);
+  }
+  if (version) {
+    for (const CLI::App* command : app.get_subcommands()) {
+      std::fprintf(stderr, "qemflow: --version is not a flag of qemflow %s\n", command->get_name().c_str());
+      return qemflow::exit_code(qemflow::ErrorKind::usage);
+    }
+    std::printf("qemflow 0.1.0\n");
+    return 0;
+  }
+  if (app.get_subcommands().empty()) {
+    std::fprintf(stderr, "qemflow: a command is required (simplify, gen, compare, info; see --help)\n");
     return qemflow::exit_code(qemflow::ErrorKind::usage);
   }
   try {

@@ -42,7 +42,7 @@ TEST(CliUsage, ClustersMustBeAutoOrAPositiveCount) {
 
 TEST(CliUsage, TargetOfZeroFacesIsRefused) {
   TempDir dir;
-  expect_simplify_refused(dir, "--target-faces 0", 2, "--target-faces must be at least 1");
+  expect_simplify_refused(dir, "--target-faces 0", 2, "--target-faces: must be a face count of at least 1");
 }
 
 TEST(CliUsage, AScratchPathThatIsAFileIsNamedAsSuch) {
