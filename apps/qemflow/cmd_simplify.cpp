@@ -11,6 +11,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <sstream>
 #include <cstdio>
 #include <fstream>
 #include <memory>
@@ -83,6 +85,24 @@ uint32_t parse_clusters(const std::string& text) {
     throw Error(ErrorKind::usage, "--clusters must be auto or a patch count from 1 to " + std::to_string(kMaxClusters) +
                                       ", not '" + text + "'");
   return uint32_t(value);
+}
+
+// A tuning value must be a finite number in [lo, hi]: CLI::Range lets NaN through (both
+// of its comparisons are false), and a NaN fraction or cosine would silently change the
+// rule it sets.
+CLI::Validator finite_in(double lo, double hi) {
+  std::ostringstream description;
+  description << "in [" << lo << ", " << hi << "]";
+  return CLI::Validator(
+      [lo, hi](std::string& text) -> std::string {
+        double value = 0;
+        const bool number = CLI::detail::lexical_cast(text, value);
+        if (number && std::isfinite(value) && value >= lo && value <= hi) return {};
+        std::ostringstream range;
+        range << "must be a number from " << lo << " to " << hi << ", not '" << text << "'";
+        return range.str();
+      },
+      description.str());
 }
 
 // The in-core run has no engine job; its trace holds one span per stage on the main
@@ -252,10 +272,12 @@ void add_simplify_command(CLI::App& root, Run& run) {
   cmd->add_flag("--double", args->double_precision, "write double-precision PLY vertices");
   cmd->add_option("--round-fraction", args->epochs.round_fraction,
                   "most faces a non-final round may remove, as a fraction of the current count")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(finite_in(0.0, 1.0));
   cmd->add_option("--candidate-fraction", args->epochs.candidate_fraction,
                   "most of the round's candidates (by faces removed) a non-final round may collapse")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(finite_in(0.0, 1.0));
   cmd->add_option("--epoch-rounds", args->epochs.epoch_rounds,
                   "rounds per global cut decision (an epoch; the out-of-core pipeline makes one "
                   "pass over the patches per epoch)")
@@ -267,25 +289,28 @@ void add_simplify_command(CLI::App& root, Run& run) {
       ->check(CLI::Range(0.0, 64.0));
   cmd->add_option("--min-normal-cos", args->params.min_normal_cos,
                   "tuning: smallest allowed cosine between a face's normals before and after a collapse")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(finite_in(-1.0, 1.0));
   cmd->add_option("--min-face-quality", args->params.min_face_quality,
                   "tuning: collapses may not create faces with |cross|/longest_edge^2 below this")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(finite_in(0.0, 1.0));
   cmd->add_option("--fold-cos", args->params.fold_cos,
                   "tuning: edges whose face normals' dot product is below this keep their rim")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(finite_in(-1.0, 1.0));
   cmd->add_option("--boundary-weight", args->params.boundary_weight,
                   "tuning: weight of the boundary-preserving quadrics")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(finite_in(0.0, 1e12));
   cmd->add_option("--deviation-weight", args->params.deviation_weight,
                   "tuning: weight of the deviation charge (keeps thin tips and rims; 0 is plain "
                   "QEM, about half the CPU time)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(finite_in(0.0, 1e12));
   cmd->callback([&run, args, target, ratio] {
     if (target->count() + ratio->count() != 1)
       throw CLI::ValidationError("simplify", "give exactly one of --target-faces and --ratio");
-    if (!(args->params.deviation_weight >= 0.0))
-      throw CLI::ValidationError("--deviation-weight", "must be 0 or more");
     run = [args] { run_simplify(*args); };
   });
 }

@@ -194,3 +194,21 @@ TEST(CliUsage, ATraceThatCannotBeWrittenLeavesNoOutput) {
 
 }  // namespace
 }  // namespace qemflow::testing
+
+namespace qemflow::testing {
+namespace {
+
+// review17: CLI::Range lets NaN through, so `--round-fraction nan` and
+// `--min-normal-cos nan` ran with a rule that no comparison could meet.
+TEST(CliUsage, TuningValuesMustBeFiniteAndInRange) {
+  TempDir dir;
+  for (const std::string bad : {"--round-fraction nan", "--candidate-fraction 2", "--min-normal-cos nan",
+                                "--min-face-quality inf", "--fold-cos -3", "--boundary-weight nan",
+                                "--deviation-weight nan"}) {
+    expect_simplify_refused(dir, "--ratio 0.5 " + bad, 2, "must be a number from");
+    std::filesystem::remove(dir / "out.ply");
+  }
+}
+
+}  // namespace
+}  // namespace qemflow::testing
