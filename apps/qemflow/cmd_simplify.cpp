@@ -121,7 +121,8 @@ void write_in_core_trace(const std::string& path, const std::vector<std::pair<co
 void run_simplify(const SimplifyArgs& args) {
   if (args.ratio && !(*args.ratio > 0.0 && *args.ratio <= 1.0))
     throw Error(ErrorKind::usage, "--ratio must be in (0, 1]");
-  if (!args.in_core) parse_clusters(args.clusters);
+  // Parsed before any branch, so a bad count is refused whatever the run (--ratio 1 too).
+  const uint32_t clusters = args.in_core ? 0 : parse_clusters(args.clusters);
   const uint64_t mem_budget = args.mem_budget.empty() ? 0 : config::parse_size(args.mem_budget);
   const std::optional<engine::ScratchCodec> codec = engine::parse_scratch_codec(args.scratch_codec);
   if (!codec) throw Error(ErrorKind::usage, "--scratch-codec must be auto, raw or zstd, not '" + args.scratch_codec + "'");
@@ -149,7 +150,7 @@ void run_simplify(const SimplifyArgs& args) {
     command.cancel = engine::interrupt_token();
     auto& o = command.options;
     o.simplify = simplify_options(args);
-    o.partition.clusters = parse_clusters(args.clusters);
+    o.partition.clusters = clusters;
     command.weld = !args.no_weld;
     o.in_core_faces = args.in_core_faces;
     nodes::pipeline::run_ooc_command(command);

@@ -75,11 +75,6 @@ TEST(CliUsage, InCoreRunWritesATraceOfItsStages) {
   EXPECT_EQ(names, "read simplify write ");
 }
 
-}  // namespace
-}  // namespace qemflow::testing
-
-namespace qemflow::testing {
-namespace {
 
 // --config FILE (DESIGN §5): a TOML file of the command's flag values.
 TEST(CliConfig, FlagValuesComeFromTheFileAndTheCommandLineWins) {
@@ -160,11 +155,6 @@ TEST(CliConfig, HelpWinsOverTheConfigFile) {
   }
 }
 
-}  // namespace
-}  // namespace qemflow::testing
-
-namespace qemflow::testing {
-namespace {
 
 // review17 (LOW): a negative target, on the command line (`--target-faces -5`, which
 // CLI11 2.1 takes as a value) or from a TOML integer (`target-faces = -5`), went through
@@ -192,11 +182,6 @@ TEST(CliUsage, ATraceThatCannotBeWrittenLeavesNoOutput) {
   expect_simplify_refused(dir, "--ratio 0.5 --quiet" + trace, 4, "cannot write the trace");
 }
 
-}  // namespace
-}  // namespace qemflow::testing
-
-namespace qemflow::testing {
-namespace {
 
 // review17: CLI::Range lets NaN through, so `--round-fraction nan` and
 // `--min-normal-cos nan` ran with a rule that no comparison could meet.
