@@ -1,5 +1,6 @@
 #include "config/config_file.hpp"
 
+#include <filesystem>
 #include <functional>
 #include <memory>
 #include <sstream>
@@ -96,6 +97,16 @@ void add_config_option(CLI::App& root) {
     command->footer("--config FILE: read this command's flag values from a TOML file (key = the flag without --; "
                     "flags on the command line win)");
   }
+}
+
+std::string file_error_message(const CLI::App& root, const CLI::FileError& error) {
+  const CLI::Option* option = root.get_option_no_throw("--config");
+  if (!option || option->count() != 1) return error.what();
+  const std::string& path = option->results().front();
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) return path + ": is a directory, not a TOML file";
+  if (!std::filesystem::exists(path, ec)) return path + ": no such file";
+  return error.what();
 }
 
 }  // namespace qemflow::config

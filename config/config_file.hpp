@@ -13,6 +13,8 @@
 // line wins over the file. The file is checked whole before the run: a TOML syntax
 // error, an unknown key, a table or an array is a usage error naming the file, the
 // line and column, and the problem.
+#include <string>
+
 #include <CLI/CLI.hpp>
 
 namespace qemflow::config {
@@ -20,5 +22,10 @@ namespace qemflow::config {
 // Adds `--config FILE` to the root app `root`, accepted after any of its commands
 // (fallthrough); the file's keys are the flags of the command being run.
 void add_config_option(CLI::App& root);
+
+// The one-line message for a FileError of `root`'s parse. CLI11 says "PATH was not
+// readable (missing?)" of any --config path that is not a regular file; this says
+// whether it is missing or a directory. Other FileErrors keep their own message.
+std::string file_error_message(const CLI::App& root, const CLI::FileError& error);
 
 }  // namespace qemflow::config

@@ -39,6 +39,9 @@ int main(int argc, char** argv) {
     return app.exit(e);
   } catch (const CLI::CallForAllHelp& e) {
     return app.exit(e);
+  } catch (const CLI::FileError& e) {
+    std::fprintf(stderr, "qemflow: %s\n", qemflow::config::file_error_message(app, e).c_str());
+    return qemflow::exit_code(qemflow::ErrorKind::usage);
   } catch (const CLI::ParseError& e) {
     std::fprintf(stderr, "qemflow: %s\n", e.what());
     return qemflow::exit_code(qemflow::ErrorKind::usage);

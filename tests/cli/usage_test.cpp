@@ -116,6 +116,15 @@ TEST(CliConfig, AFileThatIsNotFlagsIsAUsageErrorNamingItsLine) {
   }
 }
 
+// A --config path that is a directory was "not readable (missing?)", CLI11's words for
+// any path that is not a file.
+TEST(CliConfig, ADirectoryOrAMissingFileIsNamedAsSuch) {
+  TempDir dir;
+  std::filesystem::create_directories(dir / "job.toml");
+  expect_simplify_refused(dir, "--config " + (dir / "job.toml").string(), 2, "job.toml: is a directory, not a TOML file");
+  expect_simplify_refused(dir, "--config " + (dir / "none.toml").string(), 2, "none.toml: no such file");
+}
+
 // review17 (MEDIUM): "flags on the command line win" over the file, the target too:
 // a job file's ratio with --target-faces on the command line was refused ("--target-faces
 // excludes --ratio", exit 2), so a shared job file could not be given another target.
