@@ -221,15 +221,16 @@ void run_simplify(const SimplifyArgs& args) {
     if (!file) throw Error(ErrorKind::resource, args.report + ": cannot write report");
   }
   if (!args.quiet) {
+    // The out-of-core run's line with its in-core fields: the same words and units.
     std::fprintf(stderr,
-                 "simplify: %llu -> %llu faces (target %llu), %llu rounds in %llu epochs, %.2f s "
-                 "(read %.2f, setup %.2f, rounds %.2f, write %.2f), peak RSS %.1f MB\n",
+                 "qemflow: %llu -> %llu faces (target %llu), in core, %llu epochs, %llu rounds | wall %.2f s "
+                 "(read %.2f, setup %.2f, rounds %.2f, write %.2f) | peak RSS %s\n",
                  static_cast<unsigned long long>(st.input_faces),
                  static_cast<unsigned long long>(st.output_faces),
                  static_cast<unsigned long long>(st.target_faces),
-                 static_cast<unsigned long long>(st.rounds),
-                 static_cast<unsigned long long>(st.epochs), seconds_total, seconds_read,
-                 st.seconds_setup, st.seconds_rounds, seconds_write, peak_rss_bytes() / 1e6);
+                 static_cast<unsigned long long>(st.epochs),
+                 static_cast<unsigned long long>(st.rounds), seconds_total, seconds_read,
+                 st.seconds_setup, st.seconds_rounds, seconds_write, config::format_size(peak_rss_bytes()).c_str());
   }
 }
 
