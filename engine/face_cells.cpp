@@ -2,7 +2,12 @@
 
 #include <immintrin.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
+#include <limits>
+#include <memory>
+#include <vector>
 
 namespace qemflow::engine {
 
@@ -21,19 +26,26 @@ void prefetch_face(const float* xyz, uint64_t first, uint64_t vertices, const st
   }
 }
 
-void cells_scalar(const BlockGrid& grid, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
-                  uint32_t stride, uint64_t n, uint32_t* cells) {
+// cells[i] = cell(a, b, c) of face i's corner positions, prefetched ahead.
+template <class Cell>
+[[gnu::always_inline]] inline void for_each_face(const float* xyz, uint64_t first, uint64_t vertices,
+                                                 const std::byte* ids, uint32_t stride, uint64_t n, uint32_t* cells,
+                                                 Cell cell) {
   for (uint64_t i = 0; i < n; ++i) {
     if (i + prefetch_ahead < n) prefetch_face(xyz, first, vertices, ids + (i + prefetch_ahead) * stride);
     uint32_t v[3];
     std::memcpy(v, ids + i * stride, sizeof v);
-    const float* a = xyz + 3 * (v[0] - first);
-    const float* b = xyz + 3 * (v[1] - first);
-    const float* c = xyz + 3 * (v[2] - first);
+    cells[i] = cell(xyz + 3 * (v[0] - first), xyz + 3 * (v[1] - first), xyz + 3 * (v[2] - first));
+  }
+}
+
+void cells_scalar(const BlockGrid& grid, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
+                  uint32_t stride, uint64_t n, uint32_t* cells) {
+  for_each_face(xyz, first, vertices, ids, stride, n, cells, [&grid](const float* a, const float* b, const float* c) {
     Point bary;
     for (int k = 0; k < 3; ++k) bary[k] = (double(a[k]) + double(b[k]) + double(c[k])) / 3;
-    cells[i] = grid.cell_of(bary);
-  }
+    return grid.cell_of(bary);
+  });
 }
 
 // Four faces a step, one lane each: per axis, the three corners gathered and widened,
@@ -96,18 +108,182 @@ __attribute__((target("avx2"))) void cells_avx2(const BlockGrid& grid, const flo
   cells_scalar(grid, xyz, first, vertices, ids + whole * stride, stride, n - whole, cells + whole);
 }
 
+// Division-free cells. Per axis, cell_of's index of the barycenter is a function of
+// the corners' sum t = (a + b) + c alone: t / 3, - min, / extent, * dims are each
+// correctly rounded, so monotone in t, and the index is how many of 1 .. dims - 1 that
+// x reaches, except 0 where x is NaN or reaches 2^63. So it is the count of steps
+// T_j <= t (T_j the least double t whose x reaches j, found once by bisection over the
+// doubles' order), and 0 from U (x reaches 2^63) up: two additions and a few
+// comparisons a face instead of six divisions (the re-encode's largest CPU item).
+// Only for a grid whose box is finite: with an infinite min, t - min is not monotone.
+struct AxisSteps {
+  std::vector<double> steps;  // T_1 .. T_m, the ones that exist (m <= dims - 1)
+  double drop = std::numeric_limits<double>::quiet_NaN();  // U, NaN when no t reaches it
+};
+
+struct GridSteps {
+  BlockGrid grid;
+  AxisSteps axis[3];
+};
+
+// cell_of's x for the corners' sum t on axis k, with its very operations.
+double axis_x(const BlockGrid& grid, int k, double t) {
+  const double bary = t / 3;
+  const double extent = grid.max[k] - grid.min[k];
+  return (extent > 0 ? (bary - grid.min[k]) / extent : 0.0) * grid.dims[k];
+}
+
+// Doubles in order as integers (-inf lowest, then -0 just below +0), and back.
+int64_t order_key(double d) {
+  int64_t i;
+  std::memcpy(&i, &d, sizeof i);
+  return i < 0 ? INT64_MIN - i - 1 : i;  // negatives reversed below the positives
+}
+double from_order_key(int64_t i) {
+  if (i < 0) i = INT64_MIN - i - 1;
+  double d;
+  std::memcpy(&d, &i, sizeof d);
+  return d;
+}
+
+// The least t (not NaN) with reached(axis_x(t)), NaN when none; `reached` must be
+// monotone in x and false at -inf's x.
+template <class Reached>
+double least_sum(const BlockGrid& grid, int k, Reached reached) {
+  int64_t lo = order_key(-std::numeric_limits<double>::infinity());
+  int64_t hi = order_key(std::numeric_limits<double>::infinity());
+  if (!reached(axis_x(grid, k, from_order_key(hi)))) return std::numeric_limits<double>::quiet_NaN();
+  while (lo + 1 < hi) {  // reached at hi, not at lo
+    const int64_t mid = lo + int64_t((uint64_t(hi) - uint64_t(lo)) / 2);  // the span passes INT64_MAX
+    (reached(axis_x(grid, k, from_order_key(mid))) ? hi : lo) = mid;
+  }
+  return from_order_key(hi);
+}
+
+bool steps_fit(const BlockGrid& grid) {
+  for (int k = 0; k < 3; ++k) {
+    if (!std::isfinite(grid.min[k]) || !std::isfinite(grid.max[k])) return false;
+  }
+  return true;
+}
+
+const GridSteps& grid_steps(const BlockGrid& grid) {
+  // Built once a grid and thread (a load has one grid; each bisection is ~64 tries a step).
+  thread_local std::unique_ptr<GridSteps> cached;
+  if (cached && cached->grid.min == grid.min && cached->grid.max == grid.max && cached->grid.dims == grid.dims) {
+    return *cached;
+  }
+  auto built = std::make_unique<GridSteps>();
+  built->grid = grid;
+  for (int k = 0; k < 3; ++k) {
+    AxisSteps& axis = built->axis[k];
+    for (uint32_t j = 1; j < grid.dims[k]; ++j) {
+      const double step = least_sum(grid, k, [j](double x) { return x >= double(j); });
+      if (std::isnan(step)) break;  // none reaches j, so none reaches the next ones
+      axis.steps.push_back(step);
+    }
+    axis.drop = least_sum(grid, k, [](double x) { return x >= 0x1p63; });
+  }
+  cached = std::move(built);
+  return *cached;
+}
+
+uint32_t axis_index(const AxisSteps& axis, double t) {
+  if (t >= axis.drop) return 0;  // never true for NaN
+  const size_t m = axis.steps.size();
+  if (m <= 16) {
+    uint32_t idx = 0;
+    for (size_t j = 0; j < m; ++j) idx += t >= axis.steps[j];
+    return idx;
+  }
+  if (std::isnan(t)) return 0;
+  return uint32_t(std::upper_bound(axis.steps.begin(), axis.steps.end(), t) - axis.steps.begin());
+}
+
+void cells_steps(const BlockGrid& grid, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
+                 uint32_t stride, uint64_t n, uint32_t* cells) {
+  const GridSteps& steps = grid_steps(grid);
+  for_each_face(xyz, first, vertices, ids, stride, n, cells, [&](const float* a, const float* b, const float* c) {
+    uint32_t idx[3];
+    for (int k = 0; k < 3; ++k) idx[k] = axis_index(steps.axis[k], double(a[k]) + double(b[k]) + double(c[k]));
+    return (idx[2] * grid.dims[1] + idx[1]) * grid.dims[0] + idx[0];
+  });
+}
+
+// The steps kernel with a face's three axes in the lanes of one vector: each axis's
+// step j in lane k (NaN past its last step, so never reached), counted by compares.
+// For grids of at most 16 steps an axis (a load's grid: a few cells an axis).
+constexpr size_t max_vector_steps = 16;
+
+bool steps_vector_fit(const GridSteps& steps) {
+  for (const AxisSteps& axis : steps.axis) {
+    if (axis.steps.size() > max_vector_steps) return false;
+  }
+  return true;
+}
+
+__attribute__((target("avx2"))) void cells_steps_avx2(const GridSteps& steps, const float* xyz, uint64_t first,
+                                                       uint64_t vertices, const std::byte* ids, uint32_t stride,
+                                                       uint64_t n, uint32_t* cells) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  size_t m = 0;
+  for (const AxisSteps& axis : steps.axis) m = std::max(m, axis.steps.size());
+  alignas(32) double lanes[max_vector_steps + 1][4];
+  for (size_t j = 0; j <= m; ++j) {
+    for (int k = 0; k < 4; ++k) {
+      const AxisSteps* axis = k < 3 ? &steps.axis[k] : nullptr;
+      lanes[j][k] = j == m ? (axis ? axis->drop : nan) : axis && j < axis->steps.size() ? axis->steps[j] : nan;
+    }
+  }
+  __m256d step[max_vector_steps];
+  for (size_t j = 0; j < m; ++j) step[j] = _mm256_load_pd(lanes[j]);
+  const __m256d drop = _mm256_load_pd(lanes[m]), one = _mm256_set1_pd(1.0);
+  // The cell as a dot product: exact in doubles (below 2^32).
+  const BlockGrid& grid = steps.grid;
+  const __m256d weight = _mm256_setr_pd(1.0, double(grid.dims[0]), double(grid.dims[0]) * grid.dims[1], 0.0);
+  for (uint64_t i = 0; i < n; ++i) {
+    if (i + prefetch_ahead < n) prefetch_face(xyz, first, vertices, ids + (i + prefetch_ahead) * stride);
+    uint32_t v[3];
+    std::memcpy(v, ids + i * stride, sizeof v);
+    // (a + b) + c per lane, the scalar kernels' sum.
+    __m256d corner[3];
+    for (int c = 0; c < 3; ++c) {
+      // x, y and z loaded apart: 12 bytes copied to a 16-byte temporary and loaded
+      // whole missed store forwarding, three times slower than the scalar kernel.
+      const float* p = xyz + 3 * (v[c] - first);
+      const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+      corner[c] = _mm256_cvtps_pd(_mm_movelh_ps(xy, _mm_load_ss(p + 2)));
+    }
+    const __m256d t = _mm256_add_pd(_mm256_add_pd(corner[0], corner[1]), corner[2]);
+    __m256d idx = _mm256_setzero_pd();
+    for (size_t j = 0; j < m; ++j) idx = _mm256_add_pd(idx, _mm256_and_pd(_mm256_cmp_pd(t, step[j], _CMP_GE_OQ), one));
+    idx = _mm256_andnot_pd(_mm256_cmp_pd(t, drop, _CMP_GE_OQ), idx);
+    const __m256d w = _mm256_mul_pd(idx, weight);
+    const __m128d pair = _mm_add_pd(_mm256_castpd256_pd128(w), _mm256_extractf128_pd(w, 1));
+    cells[i] = uint32_t(_mm_cvtsd_si64(_mm_add_sd(pair, _mm_unpackhi_pd(pair, pair))));
+  }
+  _mm256_zeroupper();
+}
+
 bool avx2_fits(uint64_t vertices) { return 3 * vertices + 3 <= uint64_t(INT32_MAX); }
 
 }  // namespace
 
 bool face_cells_kernel_available(FaceCellsKernel kernel) {
-  return kernel == FaceCellsKernel::scalar || __builtin_cpu_supports("avx2");
+  return kernel != FaceCellsKernel::avx2 || __builtin_cpu_supports("avx2");
 }
 
 void face_cells_xyz(FaceCellsKernel kernel, const BlockGrid& grid, const float* xyz, uint64_t first,
                     uint64_t vertices, const std::byte* ids, uint32_t stride, uint64_t n, uint32_t* cells) {
   if (kernel == FaceCellsKernel::avx2 && avx2_fits(vertices)) {
     cells_avx2(grid, xyz, first, vertices, ids, stride, n, cells);
+  } else if (kernel == FaceCellsKernel::steps && steps_fit(grid)) {
+    const GridSteps& steps = grid_steps(grid);
+    if (__builtin_cpu_supports("avx2") && steps_vector_fit(steps)) {
+      cells_steps_avx2(steps, xyz, first, vertices, ids, stride, n, cells);
+    } else {
+      cells_steps(grid, xyz, first, vertices, ids, stride, n, cells);
+    }
   } else {
     cells_scalar(grid, xyz, first, vertices, ids, stride, n, cells);
   }

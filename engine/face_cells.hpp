@@ -4,6 +4,8 @@
 // six double divisions a face (barycenter / 3, then / extent), each in its own scalar
 // instruction. The AVX2 kernel divides four faces at once; every operation is the
 // scalar one's, lane by lane (IEEE, no contraction), so the cells are the same bits.
+// The steps kernel divides nothing: each axis's index is a monotone step function of
+// the corners' sum, whose steps it finds once a grid (face_cells.cpp); same cells.
 #include <cstddef>
 #include <cstdint>
 
@@ -11,7 +13,7 @@
 
 namespace qemflow::engine {
 
-enum class FaceCellsKernel { scalar, avx2 };
+enum class FaceCellsKernel { scalar, avx2, steps };
 
 // Cells of `n` faces: face i's ids are three u32 at `ids + i * stride`; vertex v's
 // position is xyz[3 * (v - first)] (ids below `first` wrap). `vertices` bounds the

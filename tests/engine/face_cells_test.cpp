@@ -55,7 +55,7 @@ TEST(FaceCells, KernelsMatchCellOfOnEveryFace) {
           }
           expected[i] = grid.cell_of(bary);
         }
-        for (const FaceCellsKernel kernel : {FaceCellsKernel::scalar, FaceCellsKernel::avx2}) {
+        for (const FaceCellsKernel kernel : {FaceCellsKernel::scalar, FaceCellsKernel::avx2, FaceCellsKernel::steps}) {
           if (!face_cells_kernel_available(kernel)) continue;
           std::vector<uint32_t> cells(n, UINT32_MAX);
           face_cells_xyz(kernel, grid, xyz.data(), first, vertices, records.data(), stride, n, cells.data());
@@ -63,6 +63,53 @@ TEST(FaceCells, KernelsMatchCellOfOnEveryFace) {
         }
       }
     }
+  }
+}
+
+// The steps kernel finds each cell edge by bisection over the corners' sums: faces
+// whose three corners are one float, walked a few hundred floats either side of every
+// cell edge of grids with inexact extents, land in cell_of's cell to the last bit.
+TEST(FaceCells, StepsKernelMatchesCellOfAtEveryCellEdge) {
+  BlockGrid grids[3];
+  grids[0].min = {0.1, -0.7, 1e-3};
+  grids[0].max = {0.7, 1.3, 1e-3 + 1e-6};
+  grids[0].dims = {7, 13, 3};
+  grids[1].min = {-1e6, 3, 0};
+  grids[1].max = {1e6 / 3, 3, 1};  // a flat axis
+  grids[1].dims = {41, 5, 1};
+  grids[2].min = {0, 0, 0};
+  grids[2].max = {1, 1, 1};
+  grids[2].dims = {1, 2, 200};  // more than 16 steps: the bisecting count
+  for (const BlockGrid& grid : grids) {
+    std::vector<float> xyz;
+    for (int k = 0; k < 3; ++k) {
+      const double extent = grid.max[k] - grid.min[k];
+      for (uint32_t j = 0; j <= grid.dims[k]; ++j) {
+        float edge = float(grid.min[k] + extent * j / grid.dims[k]);
+        for (int s = 0; s < 300; ++s) edge = std::nextafter(edge, -std::numeric_limits<float>::infinity());
+        for (int s = 0; s < 600; ++s, edge = std::nextafter(edge, std::numeric_limits<float>::infinity())) {
+          float p[3] = {float(grid.min[0]), float(grid.min[1]), float(grid.min[2])};
+          p[k] = edge;
+          xyz.insert(xyz.end(), p, p + 3);
+        }
+      }
+    }
+    const uint64_t vertices = xyz.size() / 3;
+    std::vector<std::byte> records(vertices * 12);
+    std::vector<uint32_t> expected(vertices);
+    for (uint32_t v = 0; v < vertices; ++v) {
+      const uint32_t ids[3] = {v, v, v};
+      std::memcpy(records.data() + 12 * v, ids, sizeof ids);
+      Point bary;
+      for (int k = 0; k < 3; ++k) {
+        const double x = xyz[3 * v + k];
+        bary[k] = (x + x + x) / 3;
+      }
+      expected[v] = grid.cell_of(bary);
+    }
+    std::vector<uint32_t> cells(vertices, UINT32_MAX);
+    face_cells_xyz(FaceCellsKernel::steps, grid, xyz.data(), 0, vertices, records.data(), 12, vertices, cells.data());
+    EXPECT_EQ(cells, expected);
   }
 }
 
