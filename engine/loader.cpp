@@ -1460,7 +1460,7 @@ class Loader {
                 auto* cells = reinterpret_cast<uint32_t*>(records.data() + n * size);
                 const uint64_t pair_vertices = floats ? pair_xyz.size() / 3 : pair.size();
                 if (floats) {
-                  // Over a window pair the divisions, not memory, set the pace: AVX2 when the CPU has it.
+                  // Over a window pair the arithmetic, not memory, sets the pace: the division-free kernel.
                   face_cells_xyz(mesh_.grid, pair_xyz.data(), first, pair_vertices, ids_at, size, n, cells);
                   return;
                 }
