@@ -157,6 +157,21 @@ struct Box {
       float_exact = float_exact && double(float(p[i])) == p[i];
     }
   }
+  // add(p) for n points given as xyz floats, in turn (floats are float-exact).
+  void add_floats(const float* xyz, size_t n) {
+    double lo[3] = {min[0], min[1], min[2]}, hi[3] = {max[0], max[1], max[2]};
+    for (size_t j = 0; j < n; ++j) {
+      for (int i = 0; i < 3; ++i) {
+        const double x = xyz[3 * j + i];
+        lo[i] = std::min(lo[i], x);
+        hi[i] = std::max(hi[i], x);
+      }
+    }
+    for (int i = 0; i < 3; ++i) {
+      min[i] = lo[i];
+      max[i] = hi[i];
+    }
+  }
   // add(p) for each point in turn, the same min, max and float_exact, with the box
   // in locals: through the members, each point's min, max and float test waited on
   // the last point's stores (half the out-of-core load's transform).
@@ -245,6 +260,10 @@ struct InputItem {
   // Resident re-encode: the faces were decoded straight into block_records as u32
   // triples (triangle32 records), and batch.triangles stays empty.
   bool records_decoded = false;
+  // Resident float re-encode: the vertices were decoded straight into the vertex
+  // array (InputStream::vertex_xyz), this many from batch.first_vertex; batch.vertices
+  // stays empty.
+  uint64_t xyz_decoded = 0;
   uint64_t triangle_count() const {
     return records_decoded ? block_records.size() / triangle32_record_size : batch.triangles.size();
   }
@@ -319,9 +338,18 @@ struct InputStream {
   bool triangles32 = false;
   SpareItemBuffers* spare = nullptr;
   // Compute side of the bulk reader: one item at a time, in read order.
+  // Vertex ranges decoded straight into this array of `vertex_xyz_capacity` vertices
+  // (InputItem::xyz_decoded) where the file's layout allows.
+  float* vertex_xyz = nullptr;
+  uint64_t vertex_xyz_capacity = 0;
   void decode(InputItem& item) {
     if (!bulk) return;
-    if (triangles32 && item.raw.part == io::RawChunk::Part::faces) {
+    item.xyz_decoded = 0;
+    if (vertex_xyz && item.raw.part == io::RawChunk::Part::vertices &&
+        bulk->decode_float_vertices(item.raw, vertex_xyz, vertex_xyz_capacity, item.batch.first_vertex,
+                                    item.xyz_decoded)) {
+      item.batch.vertices.clear();
+    } else if (triangles32 && item.raw.part == io::RawChunk::Part::faces) {
       if (spare) spare->lend(item);
       bulk->decode_triangles32(item.raw, item.block_records, item.batch.first_triangle);
       item.records_decoded = true;
@@ -1003,7 +1031,16 @@ class Loader {
     StageTimer timer(job_, "load");
     // Pass A: vertices, copied in place (batches hold disjoint index ranges).
     auto vertex_pass = input_pass(&InputStream::read_vertices);
-        vertex_pass.transform = [&](InputItem& item, Lease&) {
+        // The positions of a float PLY go to `xyz` as decoded; only their box is left.
+    if (floats) {
+      input_.vertex_xyz = xyz.data();
+      input_.vertex_xyz_capacity = vertex_count;
+    }
+    vertex_pass.transform = [&](InputItem& item, Lease&) {
+      if (item.xyz_decoded > 0) {
+        item.box.add_floats(xyz.data() + 3 * item.batch.first_vertex, item.xyz_decoded);
+        return;
+      }
       const auto& batch = item.batch;
       if (batch.first_vertex + batch.vertices.size() > vertex_count) {
         throw_bad_input(input_.path.string(), "vertex " + std::to_string(batch.first_vertex),
@@ -1020,9 +1057,10 @@ class Loader {
     };
     vertex_pass.sink = [&](InputItem& item, Lease&) {
       box_.add(item.box);
-      vertices_seen += item.batch.vertices.size();
+      vertices_seen += item.batch.vertices.size() + item.xyz_decoded;
     };
     run_stream_pass(job_, vertex_pass);
+    input_.vertex_xyz = nullptr;
     if (vertices_seen != vertex_count) {
       throw_bad_input(input_.path.string(), "end of vertices",
                       "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");

@@ -152,7 +152,6 @@ void PlyBulkReader::decode_triangles32(const RawChunk& chunk, Bytes& triangles, 
 
 template <bool Swap>
 void PlyBulkReader::decode_vertices(const RawChunk& chunk, MeshBatch& batch) {
-  const PlyElement& element = header_.elements[header_.vertex_element];
   const VertexLayout layout = vertex_layout(header_);
   const size_t record = layout.record;
   batch.first_vertex = vertices_done_;
@@ -162,17 +161,52 @@ void PlyBulkReader::decode_vertices(const RawChunk& chunk, MeshBatch& batch) {
   Point* out = batch.vertices.data();
   decode_vertex_records<Swap>(layout, chunk.bytes.get(), count, out);
   for (size_t i = 0; i < count; ++i) {
-    if (all_finite(out[i])) continue;
-    const Point& v = out[i];
-    throw_bad_input(name_, byte_place(chunk.offset + i * record),
-                    "vertex " + std::to_string(vertices_done_ + i) + " has a non-finite coordinate (" +
-                        std::to_string(v[0]) + ", " + std::to_string(v[1]) + ", " + std::to_string(v[2]) + ")");
+    if (!all_finite(out[i])) non_finite(chunk, i, out[i]);
   }
+  vertices_decoded(chunk, count);
+}
+
+void PlyBulkReader::non_finite(const RawChunk& chunk, size_t i, const Point& v) const {
+  throw_bad_input(name_, byte_place(chunk.offset + i * vertex_record_),
+                  "vertex " + std::to_string(vertices_done_ + i) + " has a non-finite coordinate (" +
+                      std::to_string(v[0]) + ", " + std::to_string(v[1]) + ", " + std::to_string(v[2]) + ")");
+}
+
+void PlyBulkReader::vertices_decoded(const RawChunk& chunk, size_t count) {
+  const PlyElement& element = header_.elements[header_.vertex_element];
   vertices_done_ += count;
   if (chunk.last && vertices_done_ < vertex_count_) {
-    truncated(element.name, element.count, vertices_done_, chunk.offset + count * record, record,
-              chunk.size - count * record);
+    truncated(element.name, element.count, vertices_done_, chunk.offset + count * vertex_record_, vertex_record_,
+              chunk.size - count * vertex_record_);
   }
+}
+
+bool PlyBulkReader::decode_float_vertices(const RawChunk& chunk, float* xyz, uint64_t capacity, uint64_t& first,
+                                          uint64_t& count) {
+  if (chunk.part != RawChunk::Part::vertices || !vertex_layout(header_).packed_floats) return false;
+  const size_t n = size_t(std::min<uint64_t>(chunk.size / 12, vertex_count_ - vertices_done_));
+  if (vertices_done_ + n > capacity) return false;
+  float* out = xyz + 3 * vertices_done_;
+  const char* p = chunk.bytes.get();
+  uint32_t* bits = reinterpret_cast<uint32_t*>(out);
+  if (header_.format == MeshFormat::ply_binary_be) {
+    for (size_t i = 0; i < 3 * n; ++i) bits[i] = load32<true>(p + 4 * i);
+  } else {
+    std::memcpy(out, p, 12 * n);
+  }
+  // All exponent bits set: infinite or NaN. One branch-free sweep, then the first one.
+  bool finite = true;
+  for (size_t i = 0; i < 3 * n; ++i) finite &= (bits[i] & 0x7f800000u) != 0x7f800000u;
+  if (!finite) {
+    for (size_t i = 0; i < n; ++i) {
+      const Point v{out[3 * i], out[3 * i + 1], out[3 * i + 2]};
+      if (!all_finite(v)) non_finite(chunk, i, v);
+    }
+  }
+  first = vertices_done_;
+  count = n;
+  vertices_decoded(chunk, n);
+  return true;
 }
 
 // The face record at `record` (`left` bytes available, file offset `offset`): its

@@ -76,9 +76,17 @@ class PlyBulkReader {
   // triples, 12 bytes each, at `triangles` (resized to them), not as 24-byte Triangles;
   // the id of the first in `first_triangle`. The same checks and errors as decode().
   void decode_triangles32(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle);
+  // A vertices range of a file whose vertices are just "float x, y, z": its positions
+  // straight to xyz[3 * first, 3 * (first + count)), where `first` is the range's first
+  // vertex and xyz has room for `capacity` vertices, with no Point batch between (the
+  // resident re-encode's vertex array). The same checks and errors as decode(). False,
+  // and nothing decoded, for any other layout or a range past `capacity`.
+  bool decode_float_vertices(const RawChunk& chunk, float* xyz, uint64_t capacity, uint64_t& first, uint64_t& count);
 
  private:
   template <bool Swap> void decode_vertices(const RawChunk& chunk, MeshBatch& batch);
+  [[noreturn]] void non_finite(const RawChunk& chunk, size_t i, const Point& v) const;
+  void vertices_decoded(const RawChunk& chunk, size_t count);
   template <bool Swap, class Out> void decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out);
   template <bool Swap, class Out> size_t face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
                                                      Out& out, size_t& used_triangles);

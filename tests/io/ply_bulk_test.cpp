@@ -20,7 +20,8 @@ using qemflow::testing::TempDir;
 using testing::PlyBuilder;
 
 // The whole file through the bulk reader, ranges of about `max_bytes`; with
-// `triangles32`, faces ranges through decode_triangles32 (widened back here).
+// `triangles32`, faces ranges through decode_triangles32 (widened back here), and
+// vertex ranges through decode_float_vertices where it takes them (floats "x y z").
 IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, bool triangles32 = false) {
   auto reader = open_ply_bulk_reader(path);
   EXPECT_TRUE(reader) << path;
@@ -28,7 +29,16 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, bool 
   if (!reader) return mesh;
   RawChunk chunk;
   MeshBatch batch;
+  const uint64_t capacity = reader->info().vertex_count.value_or(0);
+  std::vector<float> xyz(3 * capacity + 1, -7.0f);  // one past: nothing lands there
   while (reader->read(chunk, max_bytes)) {
+    uint64_t first = 0, count = 0;
+    if (triangles32 && reader->decode_float_vertices(chunk, xyz.data(), capacity, first, count)) {
+      EXPECT_EQ(first, mesh.vertices.size());
+      for (uint64_t v = first; v < first + count; ++v) mesh.vertices.push_back({xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]});
+      EXPECT_EQ(xyz.back(), -7.0f);
+      continue;
+    }
     if (triangles32 && chunk.part == RawChunk::Part::faces) {
       Bytes records(5);  // whatever a reused buffer held is overwritten
       uint64_t first = 0;
@@ -144,7 +154,8 @@ TEST(PlyBulk, DecodesEveryLayoutLikeTheStreamingReaderWhereverRangesEnd) {
     for (size_t max_bytes : {1, 2, 5, 12, 13, 14, 27, 100, 1 << 20}) {
       SCOPED_TRACE(layout.format + " " + layout.count + " " + layout.index + " range " + std::to_string(max_bytes));
       expect_same_mesh(bulk_read(path, max_bytes), expected);
-      // The resident re-encode's decode straight into u32 triples (polygons fanned).
+      // The resident re-encode's decode straight into u32 triples (polygons fanned)
+      // and float positions.
       expect_same_mesh(bulk_read(path, max_bytes, true), expected);
     }
   }
