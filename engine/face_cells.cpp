@@ -200,9 +200,9 @@ uint32_t axis_index(const AxisSteps& axis, double t) {
   return uint32_t(std::upper_bound(axis.steps.begin(), axis.steps.end(), t) - axis.steps.begin());
 }
 
-void cells_steps(const BlockGrid& grid, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
+void cells_steps(const GridSteps& steps, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
                  uint32_t stride, uint64_t n, uint32_t* cells) {
-  const GridSteps& steps = grid_steps(grid);
+  const BlockGrid& grid = steps.grid;
   for_each_face(xyz, first, vertices, ids, stride, n, cells, [&](const float* a, const float* b, const float* c) {
     uint32_t idx[3];
     for (int k = 0; k < 3; ++k) idx[k] = axis_index(steps.axis[k], double(a[k]) + double(b[k]) + double(c[k]));
@@ -282,7 +282,7 @@ void face_cells_xyz(FaceCellsKernel kernel, const BlockGrid& grid, const float* 
     if (__builtin_cpu_supports("avx2") && steps_vector_fit(steps)) {
       cells_steps_avx2(steps, xyz, first, vertices, ids, stride, n, cells);
     } else {
-      cells_steps(grid, xyz, first, vertices, ids, stride, n, cells);
+      cells_steps(steps, xyz, first, vertices, ids, stride, n, cells);
     }
   } else {
     cells_scalar(grid, xyz, first, vertices, ids, stride, n, cells);

@@ -1031,7 +1031,7 @@ class Loader {
     StageTimer timer(job_, "load");
     // Pass A: vertices, copied in place (batches hold disjoint index ranges).
     auto vertex_pass = input_pass(&InputStream::read_vertices);
-        // The positions of a float PLY go to `xyz` as decoded; only their box is left.
+    // The positions of a float PLY go to `xyz` as decoded; only their box is left.
     if (floats) {
       input_.vertex_xyz = xyz.data();
       input_.vertex_xyz_capacity = vertex_count;
