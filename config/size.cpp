@@ -4,6 +4,8 @@
 #include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 
 #include "util/error.hpp"
 
@@ -48,6 +50,18 @@ std::string format_size(uint64_t bytes) {
 std::string format_budget(uint64_t bytes) {
   const uint64_t mib = (bytes + (1u << 20) - 1) >> 20;
   return std::to_string(mib) + " MiB";
+}
+
+std::optional<uint64_t> env_byte_count(const char* name, bool allow_zero) {
+  const char* text = std::getenv(name);
+  if (!text) return std::nullopt;
+  uint64_t bytes = 0;
+  const char* end = text + std::strlen(text);
+  const auto [at, error] = std::from_chars(text, end, bytes);
+  if (error != std::errc() || at != end || (bytes == 0 && !allow_zero)) {
+    throw Error(ErrorKind::usage, std::string(name) + "=" + text + ": not a byte count");
+  }
+  return bytes;
 }
 
 }  // namespace qemflow::config

@@ -1,6 +1,7 @@
 #pragma once
 // Byte sizes as users write them: "4G", "512M", "1.5G", "65536", "256MiB".
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -13,5 +14,10 @@ std::string format_size(uint64_t bytes);
 // A budget to name in a refusal: `bytes` rounded up to a whole MiB, so that what the
 // message prints (and a user types back) is never below what it stands for.
 std::string format_budget(uint64_t bytes);
+
+// A test or diagnosis variable (QEMFLOW_BASELINE, QEMFLOW_SCRATCH_FREE) holding a plain
+// byte count: nullopt when unset; Error(usage) "NAME=TEXT: not a byte count" when it is
+// not decimal digits (or is 0 where zero is not allowed).
+std::optional<uint64_t> env_byte_count(const char* name, bool allow_zero);
 
 }  // namespace qemflow::config

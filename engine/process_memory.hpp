@@ -76,4 +76,11 @@ void advise_huge_pages(const void* begin, const void* end);
 // contexts, allocator slack, trace buffers). `margin` defaults to 24 MiB.
 uint64_t measure_baseline(uint64_t margin = 24ull << 20);
 
+// The baseline a CLI command's governor reserves: measure_baseline(), which moves by
+// some 100 KB between runs and every budget-derived size (patch leases, splits, load
+// windows) with it, unless QEMFLOW_BASELINE=BYTES (tests, diagnosis; read once per
+// process) fixes it, so two runs of one command make the same decisions and report the
+// same counts. Error(usage) when the variable is not a positive byte count.
+uint64_t command_baseline();
+
 }  // namespace qemflow::engine

@@ -12,7 +12,7 @@ ReencodeResult run_reencode_command(const ReencodeCommand& command) {
   tune_allocator(8 << 20, 2);  // see process_memory.hpp (measured with two arenas)
   uint64_t budget = command.mem_budget;
   if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
-  const uint64_t baseline = measure_baseline();
+  const uint64_t baseline = command_baseline();
   require_budget_for_load(budget, baseline);
   Governor governor(budget, baseline);
   ProgressBar bar(command.quiet);

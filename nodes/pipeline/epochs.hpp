@@ -70,7 +70,7 @@
 //     bit-equal (decimator.hpp), and all copies of a repeated vertex record a gather
 //     reads must agree as above; otherwise Error(internal) / a
 //     logic_error naming the gid (exit 1).
-//   QEMFLOW_BASELINE=BYTES (ooc_command.cpp): the governor's baseline, instead of the
+//   QEMFLOW_BASELINE=BYTES (engine::command_baseline): the governor's baseline, instead of the
 //     process's RSS at its start plus a margin, which moves by ~100 KB between runs and
 //     every budget-derived size with it: with it fixed, two runs of a command split the
 //     same parts and report the same counts.

@@ -4,9 +4,7 @@
 #include <unistd.h>
 
 #include <cstdio>
-#include <charconv>
 #include <cstdlib>
-#include <cstring>
 
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
@@ -21,36 +19,10 @@ namespace qemflow::nodes::pipeline {
 
 namespace {
 
-// The governor's baseline: the process's own RSS and a margin, measured, so it moves by
-// some 100 KB between runs, and every budget-derived size (patch leases, splits) with
-// it. QEMFLOW_BASELINE=BYTES (tests, diagnosis; read once) sets it, so two runs of one
-// command make the same decisions and the same report counts (epochs.hpp).
-uint64_t baseline_bytes() {
-  static const char* fixed = std::getenv("QEMFLOW_BASELINE");
-  if (!fixed) return engine::measure_baseline();
-  uint64_t bytes = 0;
-  const char* end = fixed + std::strlen(fixed);
-  const auto [at, error] = std::from_chars(fixed, end, bytes);
-  if (error != std::errc() || at != end || bytes == 0) {
-    throw Error(ErrorKind::usage, std::string("QEMFLOW_BASELINE=") + fixed + ": not a byte count");
-  }
-  return bytes;
-}
-
 // QEMFLOW_SCRATCH_FREE=BYTES (tests): the scratch disk's free bytes at the start,
 // instead of statvfs, so that --scratch-codec auto's choices can be checked against a
 // small disk without mounting one.
-std::optional<uint64_t> assumed_scratch_free() {
-  const char* text = std::getenv("QEMFLOW_SCRATCH_FREE");
-  if (!text) return std::nullopt;
-  uint64_t bytes = 0;
-  const char* end = text + std::strlen(text);
-  const auto [at, error] = std::from_chars(text, end, bytes);
-  if (error != std::errc() || at != end) {
-    throw Error(ErrorKind::usage, std::string("QEMFLOW_SCRATCH_FREE=") + text + ": not a byte count");
-  }
-  return bytes;
-}
+std::optional<uint64_t> assumed_scratch_free() { return config::env_byte_count("QEMFLOW_SCRATCH_FREE", true); }
 
 }  // namespace
 
@@ -177,7 +149,7 @@ nlohmann::json run_ooc_command(const OocCommand& command) {
   engine::tune_allocator(8 << 20, 1, 2 << 20, true);  // see process_memory.hpp (measured on the demo)
   uint64_t budget = command.mem_budget;
   if (budget == 0) budget = uint64_t(::sysconf(_SC_PHYS_PAGES)) * uint64_t(::sysconf(_SC_PAGE_SIZE)) / 2;
-  const uint64_t baseline = baseline_bytes();
+  const uint64_t baseline = engine::command_baseline();
   engine::require_budget_for_load(budget, baseline);
   engine::Governor governor(budget, baseline);
   engine::ProgressBar bar(command.quiet);

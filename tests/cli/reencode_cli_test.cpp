@@ -42,6 +42,25 @@ void expect_out_of_core_reencode_under_48m(const TempDir& dir, const std::filesy
       << "baseline " << r["baseline_bytes"] << ", governor peak " << r["governor_peak_bytes"];
 }
 
+// QEMFLOW_BASELINE fixes the governor's baseline for the re-encode as for the
+// out-of-core simplify (engine::command_baseline): the re-encode used to measure its
+// own and ignore the variable, so a run could not be repeated with the same sizes.
+TEST(ReencodeCli, TheFixedBaselineVariableIsHonoured) {
+  TempDir dir;
+  const auto in = dir / "in.ply";
+  ASSERT_NO_FATAL_FAILURE(generate(in, "--faces 2000"));
+  const auto report = dir / "r.json";
+  const std::string args = " simplify " + in.string() + " " + (dir / "out.ply").string() +
+                           " --ratio 1 --mem-budget 64M --quiet --report " + report.string();
+  std::string out;
+  ASSERT_EQ(run_command("QEMFLOW_BASELINE=33554432 " + cli_path().string() + args, &out), 0) << out;
+  EXPECT_EQ(nlohmann::json::parse(file_bytes(report))["baseline_bytes"].get<uint64_t>(), 33554432u);
+  std::filesystem::remove(dir / "out.ply");
+  EXPECT_EQ(run_command("QEMFLOW_BASELINE=32M " + cli_path().string() + args, &out), 2) << out;
+  EXPECT_NE(out.find("QEMFLOW_BASELINE=32M: not a byte count"), std::string::npos) << out;
+  EXPECT_FALSE(std::filesystem::exists(dir / "out.ply"));
+}
+
 // Found by review6 (present at 58b3b41): 1M faces in random order with 10% of the
 // vertices shuffled, `qemflow simplify IN OUT --ratio 1 --mem-budget 48M` peaked at
 // 64-70 MiB of the 48 MiB budget (the governor lent ~16 MiB over a ~29 MiB baseline).
