@@ -136,7 +136,16 @@ void Job::progress(double fraction, const std::string& stage) {
   int64_t last = last_progress_ns_.load();
   if (fraction < 1.0 && now - last < 50'000'000) return;
   if (!last_progress_ns_.compare_exchange_strong(last, now)) return;
-  hooks_.progress(fraction, stage);
+  std::lock_guard lock(progress_mutex_);
+  const double mapped = progress_from_ + (progress_to_ - progress_from_) * std::clamp(fraction, 0.0, 1.0);
+  progress_reported_ = std::max(progress_reported_, mapped);
+  hooks_.progress(progress_reported_, stage);
+}
+
+void Job::progress_span(double from, double to) {
+  std::lock_guard lock(progress_mutex_);
+  progress_from_ = from;
+  progress_to_ = to;
 }
 
 StageTimer::StageTimer(Job& job, const std::string& stage) : stage_(job.stage(stage)) {}

@@ -11,7 +11,10 @@
 //   soon as every node has finished its current item, and ends with
 //   Error(cancelled); scratch and partial output are removed as on any failure.
 // - Progress: `progress(fraction, stage)` is called from pipeline threads, at most
-//   ~20 times a second; it must be cheap and thread-safe.
+//   ~20 times a second; it must be cheap and thread-safe. A stage reports the
+//   fraction of its own work; the job maps it into the span its driver set
+//   (`progress_span`, default the whole run) and never reports less than before, so
+//   the host sees one rising fraction for the whole job.
 #include <oneapi/tbb/task_arena.h>
 
 #include <algorithm>
@@ -146,6 +149,9 @@ class Job {
   void check();
 
   void progress(double fraction, const std::string& stage);
+  // The part [from, to] of the whole job that the following progress() calls cover;
+  // set by the thread that drives the pipeline, between its stages.
+  void progress_span(double from, double to);
   StageStats& stage(const std::string& name);  // created on first use, kept in order
   std::vector<const StageStats*> stages() const;
 
@@ -164,6 +170,8 @@ class Job {
   std::exception_ptr error_;
   std::vector<std::unique_ptr<StageStats>> stages_;
   std::atomic<int64_t> last_progress_ns_{0};
+  std::mutex progress_mutex_;  // hook calls in order, each at least the one before
+  double progress_from_ = 0, progress_to_ = 1, progress_reported_ = 0;
   std::shared_ptr<std::atomic<Job*>> alive_;  // lets a cancel after the job's end do nothing
   uint64_t cancel_callback_ = 0;              // on hooks_.cancel, forgotten at the end
 };

@@ -26,6 +26,7 @@
 #include "engine/process_memory.hpp"
 #include "config/size.hpp"
 #include "engine/interrupt.hpp"
+#include "engine/progress_bar.hpp"
 #include "engine/reencode.hpp"
 #include "engine/trace.hpp"
 #include "nodes/pipeline/epochs.hpp"
@@ -165,13 +166,27 @@ void run_simplify(const SimplifyArgs& args) {
   engine::tune_allocator();
   // A trace that cannot be written fails the run before any output exists.
   if (!args.trace.empty()) engine::Trace::check_writable(args.trace);
+  // The bar follows the rounds by the share of the faces to remove that are gone (as
+  // the out-of-core run's does); the read and the setup before them show as 0%.
+  engine::ProgressBar bar(args.quiet);
+  const engine::ProgressCallback progress = bar.callback();
+  if (progress) progress(0, "read");
   const auto t0 = std::chrono::steady_clock::now();
   io::IndexedMesh mesh = io::read_mesh(args.input);
   const double seconds_read = seconds_since(t0);
 
-  nodes::SimplifyResult result =
-      nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), simplify_options(args));
+  nodes::SimplifyOptions options = simplify_options(args);
+  if (progress) {
+    const uint64_t input_faces = mesh.triangles.size();
+    const uint64_t to_remove = input_faces - std::min(input_faces, nodes::target_face_count(input_faces, options));
+    progress(0, "simplify");
+    options.on_round = [&progress, input_faces, to_remove](uint64_t, uint64_t faces) {
+      if (to_remove) progress(0.95 * double(input_faces - std::min(input_faces, faces)) / double(to_remove), "simplify");
+    };
+  }
+  nodes::SimplifyResult result = nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), options);
   const double seconds_simplified = seconds_since(t0);
+  if (progress) progress(0.95, "write");
 
   const auto t1 = std::chrono::steady_clock::now();
   io::IndexedMesh out{std::move(result.points), std::move(result.triangles)};
@@ -180,6 +195,7 @@ void run_simplify(const SimplifyArgs& args) {
   io::write_mesh(args.output, out, write_options);
   const double seconds_write = seconds_since(t1);
   const double seconds_total = seconds_since(t0);
+  bar.finish();
   const auto& st = result.stats;
   if (!args.trace.empty())
     write_in_core_trace(args.trace, {{"read", seconds_read},

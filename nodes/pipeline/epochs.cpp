@@ -660,7 +660,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
           result = std::move(outs[slot]);
         }
         for (auto& o : result) write_chunk(job, scratch, state, o.meta, o.blob, Lease(), "convert");
-        job.progress(0.3 * double(++done) / double(frames.size()), "convert");
+        job.progress(double(++done) / double(frames.size()), "convert");
       },
       kConvertBytesPerFace);
   state.isolated_faces = isolated_faces;
@@ -1368,6 +1368,15 @@ struct Runner {
   // what halo redos added for passes of that need (a redo's +2 sticks to the same kind
   // of pass: a summary-only pass does not widen the E-round passes' halos, nor back).
   int pass_rings = 0;
+  // Faces the current pass's patches removed so far (its progress).
+  uint64_t pass_removed = 0;
+  // The job's progress through the epochs and the finish: the share of the faces to
+  // remove that are gone. An epoch removes a share of the faces it passes over, so the
+  // share grows about evenly with the work.
+  double removed_share(uint64_t faces) const {
+    const uint64_t to_remove = stats.input_faces - std::min(stats.input_faces, stats.target_faces);
+    return to_remove ? double(stats.input_faces - std::min(stats.input_faces, faces)) / double(to_remove) : 1.0;
+  }
   std::map<int, int> redo_rings;
   int rings() const {
     const auto it = redo_rings.find(pass_rings);
@@ -1542,7 +1551,10 @@ struct Runner {
       }
       total.add(summary);
       if (candidates) (*candidates).push_back(std::move(owned));
-      if (next) export_patch(*out, p, *next);
+      if (next) {
+        export_patch(*out, p, *next);
+        pass_removed += owned_faces - out->faces.size();
+      }
       clock.charge(kExport);
       return true;
     }
@@ -1590,9 +1602,10 @@ struct Runner {
   // of at most kSmallestPart owned faces that does not fit is refused; the next pass
   // starts from the parts this one ran.
   RoundSummary pass(const MeshState& state, MeshState* next, const PatchPlan& plan, const DecimateParams& params,
-                    std::vector<std::vector<Candidate>>* candidates, uint64_t needed, double progress_from,
-                    double progress_to) {
+                    std::vector<std::vector<Candidate>>* candidates, uint64_t needed) {
     RoundSummary total;
+    pass_removed = 0;
+    const std::string stage = "epoch " + std::to_string(stats.ooc_epochs + 1);
     for (uint32_t p = 0; p < patches; ++p) {
       if (owner_faces[p] == 0) continue;
       std::vector<PatchPart> todo(owner_parts[p].rbegin(), owner_parts[p].rend());
@@ -1614,7 +1627,7 @@ struct Runner {
         ++stats.patch_splits;
       }
       owner_parts[p] = std::move(ran);
-      job.progress(progress_from + (progress_to - progress_from) * double(p + 1) / patches, "epochs");
+      job.progress(removed_share(state.faces - pass_removed), stage);
     }
     if (next) finish_state(job, scratch, *next);
     return total;
@@ -1713,6 +1726,12 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // it goes in core at once. An explicit --clusters is kept (tests force epochs so).
   PartitionOptions partition_options = options.partition;
   if (partition_options.clusters == 0 && fits_in_core(mesh.kept_faces(), referenced_vertices)) partition_options.clusters = 1;
+  // The job's progress (engine/job.hpp): the load took [0, kLoadShare] (ooc_command.cpp),
+  // then the partition, the conversion, and the epochs with the finish, whose share is
+  // nearly all of a run's time (the 20M blob at 1G: load, partition and conversion
+  // 41 s of 427).
+  job.progress_span(kLoadShare, kLoadShare + 0.01);
+  job.progress(0, "partition");
   const Partition partition = partition_blocks(job, scratch, mesh, partition_options);
   st.patches = partition.clusters;
   // A surface too small to sample for two clusters (copies of one triangle) has nothing
@@ -1733,6 +1752,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   // the same patches.
   const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,
                                                     std::min<uint64_t>(1024, options.chunk_faces), options.chunk_faces);
+  job.progress_span(kLoadShare + 0.01, kEpochsFrom);
   convert_blocks(job, scratch, mesh, partition, chunk_faces, *state);
   if (order_fuzz_seed()) shuffle(state->chunks);
   // The conversion read the blocks (and an out-of-core load's vertex windows) for the
@@ -1790,6 +1810,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   };
   {
     engine::StageTimer timer(job, "epochs");
+    job.progress_span(kEpochsFrom, kEpochsTo);
     while (!fits_in_core(state->faces, state->vertices()) && state->faces > st.target_faces) {
       runner.index_state(*state);
       PatchPlan plan;
@@ -1806,7 +1827,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
         } else {
           std::vector<std::vector<Candidate>> lists;
           set_pass_rings(0, false);
-          runner.pass(*state, nullptr, {}, params, &lists, e.needed, 0.3, 0.3);
+          runner.pass(*state, nullptr, {}, params, &lists, e.needed);
           const std::vector<std::span<const Candidate>> spans(lists.begin(), lists.end());
           const auto cut = exact_cut(spans, e.needed);
           if (!cut) break;
@@ -1818,9 +1839,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
       // may have room for a later one (and the first, on disk beside it, is counted).
       scratch.choose_codec(raw_state_bytes_bound(state->faces), "epoch " + std::to_string(st.ooc_epochs + 1));
       auto next = new_state();
-      const double done = std::min(1.0, double(st.input_faces - state->faces) /
-                                            double(std::max<uint64_t>(1, st.input_faces - st.target_faces)));
-      summary = runner.pass(*state, next.get(), plan, params, nullptr, 0, 0.3 + 0.6 * done, 0.3 + 0.6 * done);
+      summary = runner.pass(*state, next.get(), plan, params, nullptr, 0);
       st.rounds += plan.cuts.size();
       ++st.ooc_epochs;
       first = false;
@@ -1859,7 +1878,9 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   job.arena().execute([&] {
     PatchDecimator d(std::move(whole), params);
     st.in_core_carried_bests = d.restored_bests();
-    const EpochRunStats run = run_epochs(d, st.target_faces, epoch);
+    const EpochRunStats run = run_epochs(d, st.target_faces, epoch, [&](uint64_t, uint64_t faces) {
+      job.progress(runner.removed_share(faces), "in core");
+    });
     st.rounds += run.rounds;
     st.epochs += run.epochs;
     PatchOutput out = d.extract();

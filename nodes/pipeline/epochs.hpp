@@ -195,6 +195,11 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 // held the records beside the whole input and the loader's vertex positions, 24 B per
 // input vertex, stayed resident after their lease; both fixed.)
 inline constexpr uint64_t kPatchBytesPerFace = 276;
+// The job's progress (engine::Job::progress_span): the load reports into [0,
+// kLoadShare], the partition and the conversion up to kEpochsFrom, the epochs and the
+// finish (by the share of the faces to remove that are gone) up to kEpochsTo, the
+// output's write the rest.
+inline constexpr double kLoadShare = 0.04, kEpochsFrom = 0.1, kEpochsTo = 0.99;
 inline constexpr uint64_t kInCoreBytesPerFace = 170;
 // The finish's vertices beyond half a vertex per face (the welded meshes 170 B per face
 // was measured on) each cost this much more: an unwelded soup (3 vertices per face)

@@ -72,6 +72,7 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     engine::LoadedMesh mesh;
     {
       engine::StageTimer timer(job, "load");
+      job.progress_span(0, kLoadShare);
       engine::LoadOptions load_options;
       load_options.weld = command.weld;
       mesh = engine::load_into_blocks(job, scratch, command.input, load_options);
@@ -83,6 +84,8 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     OocResult result = simplify_blocks(job, scratch, mesh, command.options);
     {
       engine::StageTimer timer(job, "write");
+      job.progress_span(kEpochsTo, 1);
+      job.progress(0, "write");
       const uint64_t bytes = result.points.size() * 24 + result.triangles.size() * 24;
       engine::Lease lease = job.governor().acquire(job.owner("output"), std::min(bytes, job.capacity()),
                                                    std::min(bytes, job.capacity()));

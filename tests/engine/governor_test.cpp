@@ -7,7 +7,10 @@
 #include <memory>
 #include <chrono>
 #include <stdexcept>
+#include <string>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include "engine/job.hpp"
 #include "util/error.hpp"
@@ -398,6 +401,32 @@ TEST(Governor, APeakWindowIsMeasuredOnlyForAJobAlone) {
   }
   EXPECT_EQ(shared.jobs_alive(), 0);
   EXPECT_EQ(shared.jobs_started(), 3u);
+}
+
+// A job's progress is one rising fraction for the whole run: each stage reports its own
+// share of work in [0, 1] and the driver maps it into the stage's span. The out-of-core
+// simplify's conversion used to report from 0 again after the load had reached 0.9.
+TEST(JobProgress, StagesReportIntoTheirSpansAndTheFractionNeverFalls) {
+  Governor governor(1000, 0);
+  std::vector<std::pair<double, std::string>> seen;
+  JobHooks hooks{.progress = [&](double fraction, const std::string& stage) { seen.emplace_back(fraction, stage); },
+                 .cancel = {}};
+  Job job(governor, hooks, {.threads = 1});
+  // Reports closer than 50 ms apart are dropped (at most ~20 a second).
+  auto report = [&](double fraction, const char* stage) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(60));
+    job.progress(fraction, stage);
+  };
+  job.progress_span(0, 0.25);
+  report(0.5, "load");
+  report(1.0, "load");
+  job.progress_span(0.25, 1);
+  report(0.0, "convert");  // its own start: the job stays where the load ended
+  report(0.5, "convert");
+  report(0.4, "convert");  // a late report from another thread
+  const std::vector<std::pair<double, std::string>> expected{
+      {0.125, "load"}, {0.25, "load"}, {0.25, "convert"}, {0.625, "convert"}, {0.625, "convert"}};
+  EXPECT_EQ(seen, expected);
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 // more than its capacity, and a budget too tight for both makes them take turns.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <future>
@@ -142,6 +143,35 @@ TEST(SimplifyOocJobs, AJobAloneWritesTheInCoreBytes) {
   EXPECT_GT(report["in_core_peak_rss_bytes"].get<uint64_t>(), 0u);  // alone: measured
   EXPECT_TRUE(file_bytes(job.output) == m.small_in_core()) << "output differs from in core";
   EXPECT_EQ(governor.in_use(), 0u);
+}
+
+// What a host (and the CLI's bar) sees of a run: one fraction that never falls, moving
+// through the load, the conversion, each epoch pass and the in-core finish to 1 at
+// "done". The finish used to report nothing (a 20M-face finish is minutes of a frozen
+// bar) and the conversion started again from 0 after the load.
+TEST(SimplifyOocJobs, ProgressRisesThroughTheEpochsAndTheFinish) {
+  Meshes& m = meshes();
+  engine::Governor governor(128 * MiB, 0);
+  TempDir out;
+  const OocJob job = job_for(out, m.small, "progress");
+  std::vector<std::pair<double, std::string>> seen;
+  engine::JobHooks hooks;
+  hooks.progress = [&](double fraction, const std::string& stage) { seen.emplace_back(fraction, stage); };
+  const nlohmann::json report = run_ooc_job(governor, job, hooks);
+  ASSERT_FALSE(seen.empty());
+  for (size_t i = 1; i < seen.size(); ++i)
+    EXPECT_GE(seen[i].first, seen[i - 1].first) << seen[i - 1].second << " then " << seen[i].second;
+  EXPECT_EQ(seen.back(), std::make_pair(1.0, std::string("done")));
+  // The finish (from 45000 faces to 1200) is followed round by round, from where the
+  // epochs left off.
+  std::vector<double> finish;
+  for (const auto& [fraction, stage] : seen)
+    if (stage == "in core") finish.push_back(fraction);
+  ASSERT_GE(finish.size(), 2u) << "the in-core finish reported " << finish.size() << " times";
+  EXPECT_LT(finish.front(), finish.back());
+  EXPECT_GT(finish.front(), nodes::pipeline::kEpochsFrom);
+  EXPECT_TRUE(std::any_of(seen.begin(), seen.end(), [](const auto& s) { return s.second.rfind("epoch ", 0) == 0; }));
+  EXPECT_GT(report["out_of_core_epochs"].get<int>(), 0);
 }
 
 TEST(SimplifyOocJobs, AJobWritesItsOwnCodecWhateverTheProcessDefault) {
