@@ -1,6 +1,7 @@
 #include "engine/scratch.hpp"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <sys/statvfs.h>
 #include <sys/uio.h>
 #include <climits>
@@ -12,6 +13,7 @@
 #include <bit>
 #include <cerrno>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <random>
 
@@ -46,6 +48,30 @@ struct DefaultCodecState {
 DefaultCodecState& default_codec_state() {
   static DefaultCodecState state;
   return state;
+}
+
+// The scratch stores alive in this process on real disks, with the bytes each expects
+// to write there (its claim). What a store has not written yet of its claim is not in
+// statvfs's free count, so every other store on that device takes it off what it sees:
+// two jobs of one host sharing a scratch disk each find room for their own bytes.
+struct DiskClaim {
+  dev_t device;
+  uint64_t bytes;
+};
+struct DiskClaims {
+  std::mutex mutex;  // taken before any store's own
+  std::map<ScratchStore*, DiskClaim> stores;
+};
+DiskClaims& disk_claims() {
+  static DiskClaims claims;
+  return claims;
+}
+// Under the claims' mutex.
+uint64_t claimed_by_others(DiskClaims& claims, const ScratchStore* self, dev_t device) {
+  uint64_t bytes = 0;
+  for (auto& [store, claim] : claims.stores)
+    if (store != self && claim.device == device) bytes += claim.bytes - std::min(claim.bytes, store->bytes_on_disk());
+  return bytes;
 }
 
 uint64_t fnv1a(const std::byte* data, size_t size) {
@@ -334,7 +360,13 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
     throw Error(ErrorKind::resource,
                 parent.string() + (exists ? ": scratch path is not a directory" : ": scratch directory does not exist"));
   }
-  const uint64_t free_now = free_bytes();
+  struct stat parent_stat {};
+  if (!assumed_free_ && ::stat(parent.c_str(), &parent_stat) == 0) device_ = parent_stat.st_dev;
+  // Checked and claimed under one lock: two stores made at once each see the other.
+  DiskClaims& claims = disk_claims();
+  std::lock_guard claims_lock(claims.mutex);
+  const uint64_t others = device_ ? claimed_by_others(claims, this, *device_) : 0;
+  const uint64_t free_now = free_bytes_beside(others);
   const bool known = free_now != UINT64_MAX;
   bool raw = choice == ScratchCodec::raw || (choice == ScratchCodec::automatic && free_now >= expected_raw_bytes);
   record_choice({"start", raw, expected_raw_bytes, free_now});
@@ -343,8 +375,10 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
     if (free_now < expected_bytes) {
       throw Error(ErrorKind::resource,
                   parent.string() + ": scratch needs about " + config::format_size(expected_bytes) +
-                      " free but only " + config::format_size(free_now) +
-                      " is available; choose another --scratch DIR");
+                      " free but only " + config::format_size(free_now) + " is available" +
+                      (others ? " (other jobs' scratch there expects " + config::format_size(others) + " more)"
+                              : std::string()) +
+                      "; choose another --scratch DIR");
     }
   }
   std::random_device rd;
@@ -356,23 +390,38 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
                                            (ec ? ": " + ec.message() : std::string()));
     }
   }
+  if (device_) claims.stores[this] = {*device_, expected_bytes};
 }
 
-uint64_t ScratchStore::free_bytes() {
+uint64_t ScratchStore::free_bytes_beside(uint64_t others) {
   if (assumed_free_) {
     std::lock_guard lock(mutex_);
     return *assumed_free_ - std::min(*assumed_free_, on_disk_);
   }
   struct statvfs fs {};
   if (statvfs(parent_.c_str(), &fs) != 0) return UINT64_MAX;
-  return uint64_t(fs.f_bavail) * fs.f_frsize;
+  const uint64_t free = uint64_t(fs.f_bavail) * fs.f_frsize;
+  return free - std::min(free, others);
+}
+
+uint64_t ScratchStore::free_bytes() {
+  DiskClaims& claims = disk_claims();
+  std::lock_guard claims_lock(claims.mutex);
+  return free_bytes_beside(device_ ? claimed_by_others(claims, this, *device_) : 0);
 }
 
 bool ScratchStore::choose_codec(uint64_t raw_bytes, const std::string& stage) {
   if (choice_ != ScratchCodec::automatic) return codec_.raw;
-  const uint64_t free_now = free_bytes();
+  DiskClaims& claims = disk_claims();
+  std::lock_guard claims_lock(claims.mutex);
+  const uint64_t free_now = free_bytes_beside(device_ ? claimed_by_others(claims, this, *device_) : 0);
   const bool raw = free_now >= raw_bytes;
   record_choice({stage, raw, raw_bytes, free_now});
+  // A raw stage may write its bound on top of what is on disk.
+  if (raw && device_) {
+    DiskClaim& claim = claims.stores.at(this);
+    claim.bytes = std::max(claim.bytes, bytes_on_disk() + raw_bytes);
+  }
   return raw;
 }
 
@@ -383,6 +432,11 @@ void ScratchStore::record_choice(CodecChoice choice) {
 }
 
 ScratchStore::~ScratchStore() {
+  {
+    DiskClaims& claims = disk_claims();
+    std::lock_guard claims_lock(claims.mutex);
+    claims.stores.erase(this);
+  }
   for (auto& f : files_) {
     if (f.fd >= 0) ::close(f.fd);
   }

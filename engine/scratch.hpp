@@ -27,6 +27,8 @@
 //   encode_frame/decode_frame are pure CPU: call them on compute threads.
 // - Every failure is Error(resource) (disk full, read-only, vanished) or
 //   Error(internal) for a corrupt frame, each naming the file.
+#include <sys/types.h>
+
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -180,7 +182,10 @@ class ScratchStore {
   // Returns whether the frames will be raw.
   bool choose_codec(uint64_t raw_bytes, const std::string& stage);
   // Free bytes of the scratch disk now (statvfs, or assumed_free less what is on disk);
-  // UINT64_MAX when unknown.
+  // UINT64_MAX when unknown. On a real disk, less what the process's other stores there
+  // still expect to write: each store claims its expected bytes when it is made (and a
+  // raw stage's bound at choose_codec), and its claim counts until written or the store
+  // ends, so the up-front check and the codec choices see the room left beside them.
   uint64_t free_bytes();
   // The choices made: the constructor's ("start") and each choose_codec()'s, with the
   // raw bound asked for and the free bytes seen (the report's scratch_codec_choices).
@@ -237,11 +242,14 @@ class ScratchStore {
   // Sets the codec the choice names and keeps the choice (the report's).
   void record_choice(CodecChoice choice);
   File& file(uint32_t id);
+  // free_bytes() with `others` (the other stores' outstanding claims) taken off.
+  uint64_t free_bytes_beside(uint64_t others);
 
   std::filesystem::path dir_, parent_;
   FrameCodec codec_;
   ScratchCodec choice_ = ScratchCodec::zstd;
-  std::optional<uint64_t> assumed_free_;
+  std::optional<uint64_t> assumed_free_;  // an assumed disk is the store's own: no claims
+  std::optional<dev_t> device_;           // the scratch disk, for the claims
   std::vector<CodecChoice> choices_;
   std::mutex mutex_;
   std::deque<File> files_;  // a deque: references stay valid as files are added

@@ -1,6 +1,7 @@
 #include "engine/scratch.hpp"
 
 #include <gtest/gtest.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 
 #include <cstring>
@@ -284,6 +285,35 @@ TEST(ScratchStore, DiscardedPagesGoAndTheRestOfTheFileStays) {
   EXPECT_EQ(got.substr(2 * page), bytes.substr(2 * page));
   if (got.substr(page, page) == bytes.substr(page, page)) GTEST_SKIP() << "this file system keeps discarded bytes";
   EXPECT_EQ(got.substr(page, page), std::string(page, '\0'));
+}
+
+// Two jobs of one host on one scratch disk: each store's up-front check takes off what
+// the others still expect to write (statvfs sees only what they wrote), so the second
+// of two stores that would each fit alone but not together is refused, naming the
+// others' share; the claim goes with its store. (Both used to pass the check.)
+TEST(ScratchStore, AStoreLeavesRoomForWhatAnotherOnTheDiskStillExpectsToWrite) {
+  TempDir tmp;
+  struct statvfs fs {};
+  ASSERT_EQ(statvfs(tmp.path().c_str(), &fs), 0);
+  const uint64_t free = uint64_t(fs.f_bavail) * fs.f_frsize;
+  ASSERT_GT(free, 64ull << 20);
+  {
+    ScratchStore first(tmp.path(), free / 2);
+    try {
+      ScratchStore second(tmp.path(), free / 2 + free / 8);
+      FAIL() << "both stores passed the check";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::resource);
+      EXPECT_NE(std::string(e.what()).find("other jobs' scratch there expects"), std::string::npos) << e.what();
+    }
+    ScratchStore third(tmp.path(), free / 4);  // room beside the first
+    EXPECT_LT(third.free_bytes(), free / 2 + free / 16);
+    // Raw when the raw bytes fit beside the others' claims, zstd when they do not.
+    EXPECT_TRUE(ScratchStore(tmp.path(), 1 << 20, free / 8, ScratchCodec::automatic).codec().raw);
+    EXPECT_FALSE(ScratchStore(tmp.path(), 1 << 20, free / 2, ScratchCodec::automatic).codec().raw);
+  }
+  ScratchStore alone(tmp.path(), free / 2 + free / 8);  // the claims went with their stores
+  EXPECT_TRUE(std::filesystem::exists(alone.dir()));
 }
 
 TEST(ScratchStore, NotEnoughFreeSpaceIsRefusedUpFront) {
