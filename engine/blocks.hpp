@@ -79,6 +79,10 @@ static_assert(sizeof(PackedBlockFace) == 80);
 // fit, else u64 id then u64 ids, 32), and the writer puts each block in face-id order:
 // either way a block's faces come out in face-id order (DESIGN.md §3, guarantee 1).
 constexpr uint32_t triangle32_record_size = 3 * sizeof(uint32_t);
+// Or, resident, when the output is a binary PLY (LoadOptions::ply_triangle_records):
+// the output's own face records, "3 a b c" (uchar, then three u32 little-endian), which
+// the writer hands to the file as they lie: no decode to ids and encode back a face.
+constexpr uint32_t ply_triangle_record_size = 13;
 constexpr uint32_t id_triangle32_record_size = 4 * sizeof(uint32_t);
 constexpr uint32_t id_triangle64_record_size = 4 * sizeof(uint64_t);
 bool is_id_triangle_record(uint32_t record_size);
@@ -86,7 +90,7 @@ bool is_id_triangle_record(uint32_t record_size);
 // exactly, else as Points (FrameRef::record_size says which).
 constexpr uint32_t float_vertex_record_size = 3 * sizeof(float);
 constexpr uint32_t triangle64_record_size = 3 * sizeof(uint64_t);
-// Triangle-only records without ids (either width).
+// Triangle-only records without ids (either width, or PLY face records).
 bool is_triangle_record(uint32_t record_size);
 // Triangle-only records without ids (either width) to Triangles.
 void unpack_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, Triangle* out);
@@ -142,6 +146,9 @@ struct LoadOptions {
   // Blocks hold triangle-only records (no ids, positions or degrees), and are kept in
   // memory instead of scratch when they fit the lease (LoadedMesh::resident_blocks).
   bool triangles_only = false;
+  // Resident triangle-only blocks of a mesh with u32 vertex ids hold PLY face records
+  // (ply_triangle_record_size): the re-encode's, when it writes a binary PLY.
+  bool ply_triangle_records = false;
   // Re-encode: the input as it is (no weld, every face, no degree pass), blocks of
   // triangles only.
   static LoadOptions verbatim(LoadOptions options) {

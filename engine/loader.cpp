@@ -258,14 +258,15 @@ struct InputItem {
   uint64_t max_index = 0;                                 // out of core: the largest vertex index
   bool classified = false;  // out of core: block_records hold u32 ids, cells the local bucket (or UINT32_MAX)
   // Resident re-encode: the faces were decoded straight into block_records as u32
-  // triples (triangle32 records), and batch.triangles stays empty.
+  // triples (triangle32 records) or PLY face records, and batch.triangles stays empty.
   bool records_decoded = false;
   // Resident float re-encode: the vertices were decoded straight into the vertex
   // array (InputStream::vertex_xyz), this many from batch.first_vertex; batch.vertices
   // stays empty.
   uint64_t xyz_decoded = 0;
+  uint32_t decoded_record_size = triangle32_record_size;  // with records_decoded: or ply_triangle_record_size
   uint64_t triangle_count() const {
-    return records_decoded ? block_records.size() / triangle32_record_size : batch.triangles.size();
+    return records_decoded ? block_records.size() / decoded_record_size : batch.triangles.size();
   }
 };
 
@@ -333,9 +334,10 @@ struct InputStream {
     return reader->next(item.batch, elements) &&
            (!item.batch.vertices.empty() || !item.batch.triangles.empty());
   }
-  // Faces ranges decoded as triangle32 block records (InputItem::records_decoded),
-  // into the buffers of earlier items when `spare` has some.
-  bool triangles32 = false;
+  // Faces ranges decoded as block records of this size (triangle32 or PLY face
+  // records; InputItem::records_decoded), into the buffers of earlier items when
+  // `spare` has some. 0: decoded to batches.
+  uint32_t decoded_records = 0;
   SpareItemBuffers* spare = nullptr;
   // Compute side of the bulk reader: one item at a time, in read order.
   // Vertex ranges decoded straight into this array of `vertex_xyz_capacity` vertices
@@ -349,10 +351,15 @@ struct InputStream {
         bulk->decode_float_vertices(item.raw, vertex_xyz, vertex_xyz_capacity, item.batch.first_vertex,
                                     item.xyz_decoded)) {
       item.batch.vertices.clear();
-    } else if (triangles32 && item.raw.part == io::RawChunk::Part::faces) {
+    } else if (decoded_records && item.raw.part == io::RawChunk::Part::faces) {
       if (spare) spare->lend(item);
-      bulk->decode_triangles32(item.raw, item.block_records, item.batch.first_triangle);
+      if (decoded_records == ply_triangle_record_size) {
+        bulk->decode_ply_triangles(item.raw, item.block_records, item.batch.first_triangle);
+      } else {
+        bulk->decode_triangles32(item.raw, item.block_records, item.batch.first_triangle);
+      }
       item.records_decoded = true;
+      item.decoded_record_size = decoded_records;
     } else {
       bulk->decode(item.raw, item.batch);
     }
@@ -459,7 +466,8 @@ class ResidentBlocks {
     const uint64_t records = faces * record_size;
     first_page_bytes_ = std::clamp<uint64_t>(std::bit_ceil(std::max<uint64_t>(records / std::max<uint32_t>(cells, 1), 1)),
                                              4 << 10, page_bytes);
-    bytes_ = records + std::min(uint64_t(cells) * page_bytes, records + uint64_t(cells) * first_page_bytes_);
+    bytes_ = records + std::min(uint64_t(cells) * page_bytes, records + uint64_t(cells) * first_page_bytes_) +
+             uint64_t(cells) * record_size;  // a page's capacity rounds up to whole records
   }
   uint64_t bytes() const { return bytes_; }
   void hold(Lease lease) { lease_ = std::move(lease); }
@@ -471,7 +479,9 @@ class ResidentBlocks {
       if (pages.empty() || pages.back().size() == pages.back().capacity()) {
         const uint64_t bytes = pages.empty() ? first_page_bytes_ : std::min(page_bytes, 2 * pages.back().capacity());
         pages.emplace_back();
-        pages.back().reserve(bytes / record_size_ * record_size_);
+        // Whole records, rounded up: a full page of PLY face records is then at least
+        // page_bytes, which the output's sink writes as it lies, without a copy.
+        pages.back().reserve((bytes + record_size_ - 1) / record_size_ * record_size_);
       }
       Bytes& page = pages.back();
       const size_t at = page.size();
@@ -479,6 +489,8 @@ class ResidentBlocks {
       page.resize(at + n * record_size_);
       if (n == 1 && record_size_ == triangle32_record_size) {
         std::memcpy(page.data() + at, records, triangle32_record_size);  // no libc call
+      } else if (n == 1 && record_size_ == ply_triangle_record_size) {
+        std::memcpy(page.data() + at, records, ply_triangle_record_size);
       } else {
         std::memcpy(page.data() + at, records, n * record_size_);
       }
@@ -703,7 +715,9 @@ class Loader {
   // A triangle record at `out` (block_record_size bytes); returns its cell (the same
   // as make_record's). Any thread.
   uint32_t triangle_record(const Triangle& t, const Point& a, const Point& b, const Point& c, std::byte* out) const {
-    if (mesh_.block_record_size == triangle32_record_size) {
+    if (mesh_.block_record_size == ply_triangle_record_size) {
+      io::put_ply_triangle(uint32_t(t[0]), uint32_t(t[1]), uint32_t(t[2]), out);
+    } else if (mesh_.block_record_size == triangle32_record_size) {
       put_u32_pair(out, t[0], t[1]);
       const uint32_t third = uint32_t(t[2]);
       std::memcpy(out + 8, &third, sizeof third);
@@ -723,8 +737,9 @@ class Loader {
                                     ? id_triangle32_record_size
                                     : id_triangle64_record_size;
     } else if (options_.triangles_only) {
-      mesh_.block_record_size =
-          mesh_.vertex_count <= UINT32_MAX ? triangle32_record_size : triangle64_record_size;
+      mesh_.block_record_size = mesh_.vertex_count > UINT32_MAX        ? triangle64_record_size
+                                : options_.ply_triangle_records ? ply_triangle_record_size
+                                                                : triangle32_record_size;
     } else {
       mesh_.block_record_size = box_.float_exact ? sizeof(PackedBlockFace) : sizeof(BlockFace);
     }
@@ -887,10 +902,16 @@ class Loader {
     // the sink only files them. A binary PLY's faces, re-encoded as triangle32 records,
     // are decoded straight into them (12 bytes a face instead of a 24-byte Triangle
     // the transform then read back): only their cells are left to find.
-    input_.triangles32 = input_.bulk && verbatim_triangles() && mesh_.block_record_size == triangle32_record_size;
+    const uint32_t record = mesh_.block_record_size;
+    // A record's first id: PLY face records start with their count byte.
+    const uint32_t ids_at = record == ply_triangle_record_size ? 1 : 0;
+    input_.decoded_records = input_.bulk && verbatim_triangles() &&
+                                     (record == triangle32_record_size || record == ply_triangle_record_size)
+                                 ? record
+                                 : 0;
     auto face_pass = input_pass(&InputStream::read_faces);
     SpareItemBuffers spare;
-    if (input_.triangles32) {
+    if (input_.decoded_records) {
       // Records and cells of up to 8 items of the largest size (16 bytes an element).
       const uint64_t spare_bytes = 8 * (face_pass.max_item_bytes / bytes_per_input_element + 16) * 16;
       if (spare_bytes <= reserve_.bytes() / 4) {
@@ -906,13 +927,13 @@ class Loader {
         if (floats) {
           // Division-free: the scalar kernel's six divisions a face were a quarter of a
           // resident re-encode's CPU, and the AVX2 kernel's gathers came out 5-10% slower.
-          face_cells_xyz(FaceCellsKernel::steps, mesh_.grid, xyz.data(), 0, vertex_count, records,
-                         triangle32_record_size, faces, item.cells.data());
+          face_cells_xyz(FaceCellsKernel::steps, mesh_.grid, xyz.data(), 0, vertex_count, records + ids_at, record,
+                         faces, item.cells.data());
           return;
         }
         auto id = [&](size_t i, int k) {
           uint32_t v;
-          std::memcpy(&v, records + i * triangle32_record_size + k * sizeof v, sizeof v);
+          std::memcpy(&v, records + i * record + ids_at + k * sizeof v, sizeof v);
           return uint64_t(v);
         };
         for (size_t i = 0; i < faces; ++i) {
@@ -995,7 +1016,7 @@ class Loader {
       if (input_.spare) input_.spare->keep(item);
     };
     run_stream_pass(job_, face_pass);
-    input_.triangles32 = false;
+    input_.decoded_records = 0;
     input_.spare = nullptr;
     spare.clear();
     give_back(std::move(spare.lease));
@@ -1701,7 +1722,8 @@ class Loader {
 }  // namespace
 
 bool is_triangle_record(uint32_t record_size) {
-  return record_size == triangle32_record_size || record_size == triangle64_record_size;
+  return record_size == triangle32_record_size || record_size == triangle64_record_size ||
+         record_size == ply_triangle_record_size;
 }
 
 bool is_id_triangle_record(uint32_t record_size) {
@@ -1711,6 +1733,15 @@ bool is_id_triangle_record(uint32_t record_size) {
 void unpack_block_triangles(const std::byte* records, uint64_t count, uint32_t record_size, Triangle* out) {
   if (record_size == triangle64_record_size) {
     std::memmove(static_cast<void*>(out), records, count * sizeof(Triangle));
+    return;
+  }
+  if (record_size == ply_triangle_record_size) {
+    // Backwards as below (a record is 13 bytes, a Triangle 24).
+    for (uint64_t i = count; i-- > 0;) {
+      uint32_t ids[3];
+      std::memcpy(ids, records + i * ply_triangle_record_size + 1, sizeof ids);
+      out[i] = {ids[0], ids[1], ids[2]};
+    }
     return;
   }
   if (record_size != triangle32_record_size) throw Error(ErrorKind::internal, "not a triangle block record");

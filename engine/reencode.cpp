@@ -13,6 +13,7 @@
 #include "engine/report.hpp"
 #include "engine/scratch.hpp"
 #include "engine/stream_pass.hpp"
+#include "io/mesh_file_kind.hpp"
 #include "io/mesh_stream.hpp"
 #include "io/ply_bulk.hpp"
 #include "util/error.hpp"
@@ -115,16 +116,6 @@ void submit_encoded_triangles(Job& job, io::MeshWriter& writer, Buffer bytes, ui
       job.error_handler(), count * io::ply_triangle_bytes);
 }
 
-// One PLY face record "3 a b c" (io::ply_triangle_bytes) at `at`, as two overlapping
-// 8-byte stores: bytes 0-7 (3, a, b's low three bytes), then bytes 5-12 (b, c).
-void put_ply_triangle32(const uint32_t abc[3], std::byte* at) {
-  static_assert(std::endian::native == std::endian::little);  // as the PLY writer's own encode
-  const uint64_t head = 3 | uint64_t(abc[0]) << 8 | uint64_t(abc[1]) << 40;
-  const uint64_t tail = uint64_t(abc[1]) | uint64_t(abc[2]) << 32;
-  std::memcpy(at, &head, sizeof head);
-  std::memcpy(at + 5, &tail, sizeof tail);
-}
-
 // u32 triangle records (12 bytes) to PLY face records (13 bytes, io::encode_ply_triangles'
 // bytes) at `out`, which may be `records` itself when it has room: backwards, so that
 // each record is read before anything is written over it (record i goes to 13i, at or
@@ -135,7 +126,7 @@ uint64_t encode_triangle32_records(const std::byte* records, uint64_t count, std
     uint32_t abc[3];
     std::memcpy(abc, records + i * triangle32_record_size, sizeof abc);
     largest = std::max({largest, abc[0], abc[1], abc[2]});
-    put_ply_triangle32(abc, out + i * io::ply_triangle_bytes);
+    io::put_ply_triangle(abc[0], abc[1], abc[2], out + i * io::ply_triangle_bytes);
   }
   return largest;
 }
@@ -196,11 +187,56 @@ void submit_triangles(Job& job, io::MeshWriter& writer, Buffer triangles, uint64
       job.error_handler(), n * sizeof(Triangle));
 }
 
+// The largest index a block's PLY face record may hold: each was checked against the
+// vertex count when it was made (the writer checks what it is told).
+uint64_t ply_records_max_index(const LoadedMesh& mesh) { return mesh.vertex_count ? mesh.vertex_count - 1 : 0; }
+
+// Blocks held in memory as PLY face records, to binary PLY: the pages are the output's
+// bytes, handed to the I/O thread as they lie (a full page is large enough for the
+// sink to write without a copy) and freed once written. Their lease goes back at the
+// end: nothing else asks for memory while they are written.
+uint64_t write_resident_ply_records(Job& job, LoadedMesh& mesh, io::MeshWriter& writer) {
+  constexpr uint64_t triangles_per_task = 1 << 18;
+  const uint64_t max_index = ply_records_max_index(mesh);
+  std::vector<Bytes*> pages;
+  for (auto& cell : mesh.resident_blocks)
+    for (Bytes& page : cell) pages.push_back(&page);
+  uint64_t written = 0;
+  for (size_t first = 0; first < pages.size();) {
+    auto batch = std::make_shared<std::vector<Bytes>>();
+    uint64_t n = 0;
+    size_t end = first;
+    while (end < pages.size() && (n == 0 || n + pages[end]->size() / ply_triangle_record_size <= triangles_per_task)) {
+      n += pages[end]->size() / ply_triangle_record_size;
+      batch->push_back(std::move(*pages[end++]));
+    }
+    job.io().submit(
+        "write triangles",
+        [&writer, batch, max_index] {
+          for (Bytes& page : *batch) {
+            writer.write_encoded_triangles(reinterpret_cast<const char*>(page.data()),
+                                           page.size() / ply_triangle_record_size, max_index);
+            page = Bytes();
+          }
+        },
+        job.error_handler(), n * io::ply_triangle_bytes);
+    written += n;
+    first = end;
+    job.progress(0.9 + 0.1 * double(first) / double(pages.size()), "write");
+  }
+  job.io().drain();
+  job.check();
+  mesh.resident_blocks.clear();
+  mesh.resident_blocks_lease.release();
+  return written;
+}
+
 // Blocks held in memory, to binary PLY: pages encoded here, a few MiB at a time (few,
 // large writes), while the I/O thread writes the ones before; pages are freed as they go.
 uint64_t write_resident_triangles_encoded(Job& job, LoadedMesh& mesh, io::MeshWriter& writer) {
   constexpr uint64_t triangles_per_write = 1 << 18;
   const uint32_t record = mesh.block_record_size;
+  if (record == ply_triangle_record_size) return write_resident_ply_records(job, mesh, writer);
   std::vector<Bytes*> pages;
   for (auto& cell : mesh.resident_blocks)
     for (Bytes& page : cell) pages.push_back(&page);
@@ -357,7 +393,7 @@ struct OutputPieces {
     for (uint64_t i = 0; i < n; ++i) {
       largest = std::max({largest, r[i].v[0], r[i].v[1], r[i].v[2]});
       if (ply) {
-        put_ply_triangle32(r[i].v, at + i * io::ply_triangle_bytes);
+        io::put_ply_triangle(r[i].v[0], r[i].v[1], r[i].v[2], at + i * io::ply_triangle_bytes);
       } else {
         const Triangle t{r[i].v[0], r[i].v[1], r[i].v[2]};
         std::memcpy(at + i * sizeof t, &t, sizeof t);
@@ -735,6 +771,7 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
   for_each_frame(
       job, scratch, "write", "block frames", frames, mesh.block_record_size,
       [&mesh, encode](const FrameHeader& header, Bytes& records, Lease&) {
+        if (encode && mesh.block_record_size == ply_triangle_record_size) return;  // the output's bytes already
         if (encode && mesh.block_record_size == triangle32_record_size) {
           // In place: the frame's read left room for the PLY records (out_record_size).
           records.resize(header.count * io::ply_triangle_bytes + sizeof(uint64_t));
@@ -768,8 +805,10 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
       },
       [&](const FrameHeader& header, Bytes& records, Lease& lease) {
         if (encode) {
-          uint64_t max_index;
-          std::memcpy(&max_index, records.data() + header.count * io::ply_triangle_bytes, sizeof max_index);
+          uint64_t max_index = ply_records_max_index(mesh);
+          if (mesh.block_record_size != ply_triangle_record_size) {
+            std::memcpy(&max_index, records.data() + header.count * io::ply_triangle_bytes, sizeof max_index);
+          }
           submit_encoded_triangles(job, writer, std::move(records), header.count, max_index, lease.split(lease.bytes()));
           written += header.count;
           job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
@@ -780,7 +819,9 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
         written += n;
         job.progress(0.9 + 0.1 * double(++done) / double(frames.size()), "write");
       },
-      encode ? uint32_t(io::ply_triangle_bytes) + 1 : is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0,
+      encode && mesh.block_record_size == ply_triangle_record_size ? 0
+      : encode                                                     ? uint32_t(io::ply_triangle_bytes) + 1
+               : is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0,
       false, encode && mesh.block_record_size == triangle32_record_size);
   job.io().drain();
   job.check();
@@ -856,7 +897,10 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     hooks.vertices = [&](uint64_t, const Point* points, uint64_t n) { submit_vertices(job, *writer, points, n); };
     hooks.float_vertices = [&](uint64_t, const float* xyz, uint64_t n) { submit_float_vertices(job, *writer, xyz, n); };
     // The input as it is: re-encode keeps every vertex and face.
-    LoadedMesh mesh = load_into_blocks(job, scratch, options.input, LoadOptions::verbatim(options.load), hooks);
+    LoadOptions load = LoadOptions::verbatim(options.load);
+    // A PLY output's face records are kept as they will be written (blocks.hpp).
+    load.ply_triangle_records = !io::mesh_file_kind(options.output).obj;
+    LoadedMesh mesh = load_into_blocks(job, scratch, options.input, load, hooks);
     open_output(mesh);
     StageTimer timer(job, "write");
     const bool blocks_in_memory = mesh.blocks_resident();

@@ -56,6 +56,16 @@ struct Triangles32 {
   }
 };
 
+// PLY face records (13 bytes), as the writer encodes them.
+struct PlyTriangles {
+  Bytes& v;
+  size_t size() const { return v.size() / ply_triangle_bytes; }
+  void resize(size_t n) { v.resize(n * ply_triangle_bytes); }
+  void set(size_t i, uint64_t a, uint64_t b, uint64_t c) {
+    put_ply_triangle(uint32_t(a), uint32_t(b), uint32_t(c), v.data() + i * ply_triangle_bytes);
+  }
+};
+
 }  // namespace
 
 PlyBulkReader::PlyBulkReader(const std::filesystem::path& path, PlyHeader header, uint64_t file_size)
@@ -148,6 +158,14 @@ void PlyBulkReader::decode_triangles32(const RawChunk& chunk, Bytes& triangles, 
   }
   if (header_.format == MeshFormat::ply_binary_be) decode_faces<true>(chunk, first_triangle, Triangles32{triangles});
   else decode_faces<false>(chunk, first_triangle, Triangles32{triangles});
+}
+
+void PlyBulkReader::decode_ply_triangles(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle) {
+  if (chunk.part != RawChunk::Part::faces || vertex_count_ > UINT32_MAX) {
+    throw Error(ErrorKind::internal, "decode_ply_triangles: not a faces range of a mesh with u32 indices");
+  }
+  if (header_.format == MeshFormat::ply_binary_be) decode_faces<true>(chunk, first_triangle, PlyTriangles{triangles});
+  else decode_faces<false>(chunk, first_triangle, PlyTriangles{triangles});
 }
 
 template <bool Swap>

@@ -22,7 +22,10 @@
 // Encoding (the writing half): encode_ply_vertices / encode_ply_triangles make the
 // exact bytes io::MeshWriter's PLY writer writes for a batch, on any thread; the I/O
 // thread then appends them with MeshWriter::write_encoded_*.
+#include <bit>
+#include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -76,6 +79,9 @@ class PlyBulkReader {
   // triples, 12 bytes each, at `triangles` (resized to them), not as 24-byte Triangles;
   // the id of the first in `first_triangle`. The same checks and errors as decode().
   void decode_triangles32(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle);
+  // The same as PLY face records, "3 a b c" (ply_triangle_bytes each, the bytes the
+  // writer's encode_ply_triangles makes): what a re-encode writes out unchanged.
+  void decode_ply_triangles(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle);
   // A vertices range of a file whose vertices are just "float x, y, z": its positions
   // straight to xyz[3 * first, 3 * (first + count)), where `first` is the range's first
   // vertex and xyz has room for `capacity` vertices, with no Point batch between (the
@@ -142,5 +148,15 @@ size_t encode_ply_vertices(const Point* points, size_t count, bool double_precis
 size_t encode_ply_triangles(const Triangle* triangles, size_t count, char* out, uint64_t& max_index);
 size_t encode_ply_triangles(const uint32_t* triangles, size_t count, char* out, uint64_t& max_index);
 inline constexpr size_t ply_triangle_bytes = 13;
+// One PLY face record "3 a b c" (ply_triangle_bytes, encode_ply_triangles' bytes) at
+// `at`, as two overlapping 8-byte stores: bytes 0-7 (3, a, b's low three bytes), then
+// bytes 5-12 (b, c).
+inline void put_ply_triangle(uint32_t a, uint32_t b, uint32_t c, std::byte* at) {
+  static_assert(std::endian::native == std::endian::little);  // as the PLY writer's own encode
+  const uint64_t head = 3 | uint64_t(a) << 8 | uint64_t(b) << 40;
+  const uint64_t tail = uint64_t(b) | uint64_t(c) << 32;
+  std::memcpy(at, &head, sizeof head);
+  std::memcpy(at + 5, &tail, sizeof tail);
+}
 
 }  // namespace qemflow::io

@@ -328,6 +328,24 @@ TEST(Reencode, TwoJobsShareOneGovernor) {
   expect_same_mesh(in, dir / "out1.ply");
 }
 
+// Resident blocks bound for a PLY hold its face records as they will be written (no
+// decode to ids and encode back); for an OBJ, u32 ids. The same mesh either way.
+TEST(Reencode, ResidentBlocksHoldThePlyOutputsFaceRecords) {
+  TempDir dir;
+  const auto in = make_mesh(dir, 20'000);
+  for (const char* name : {"out.ply", "out.obj", "out.ply.zst"}) {
+    SCOPED_TRACE(name);
+    Governor governor(256ull << 20, 0);
+    ReencodeOptions options{.input = in, .output = dir / name, .scratch_dir = dir.path()};
+    options.load = {.faces_per_block = 2'000};
+    auto result = run_reencode(governor, options, {});
+    EXPECT_TRUE(result.report["blocks_in_memory"].get<bool>());
+    EXPECT_EQ(result.report["block_record_bytes"],
+              std::string(name) == "out.obj" ? triangle32_record_size : ply_triangle_record_size);
+    expect_same_mesh(in, dir / name);
+  }
+}
+
 TEST(Reencode, DoubleCoordinatesKeepEveryBitInBothModes) {
   TempDir dir;
   gen::GenOptions gen_options;
@@ -343,8 +361,9 @@ TEST(Reencode, DoubleCoordinatesKeepEveryBitInBothModes) {
     options.load = {.faces_per_block = 500, .window_vertices = out_of_core ? 301u : 0u,
                     .range_faces = out_of_core ? 401u : 0u, .force_out_of_core = out_of_core};
     auto result = run_reencode(governor, options, {});
-    // Re-encode: triangles only (out of core with their face ids).
-    EXPECT_EQ(result.report["block_record_bytes"], out_of_core ? id_triangle32_record_size : triangle32_record_size);
+    // Re-encode: triangles only (out of core with their face ids; resident, to a PLY,
+    // as its face records).
+    EXPECT_EQ(result.report["block_record_bytes"], out_of_core ? id_triangle32_record_size : ply_triangle_record_size);
     expect_same_mesh(dir / "in.ply", dir / "out.ply");
   }
 }
@@ -405,7 +424,8 @@ TEST(Reencode, ManySmallCellsStayResidentWithinAFewPagesOfTheirRecords) {
   const uint64_t cells = loaded.grid.count();
   EXPECT_GT(cells, 500u);
   const uint64_t records = loaded.face_count * loaded.block_record_size;
-  EXPECT_LE(loaded.resident_blocks_lease.bytes(), 2 * records + cells * (4 << 10));
+  // A page's capacity is whole records, rounded up: a record more a cell at most.
+  EXPECT_LE(loaded.resident_blocks_lease.bytes(), 2 * records + cells * ((4 << 10) + loaded.block_record_size));
   uint64_t stored = 0;
   for (const auto& cell : loaded.resident_blocks)
     for (const Bytes& page : cell) stored += page.size();

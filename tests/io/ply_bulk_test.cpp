@@ -19,10 +19,12 @@ namespace {
 using qemflow::testing::TempDir;
 using testing::PlyBuilder;
 
-// The whole file through the bulk reader, ranges of about `max_bytes`; with
-// `triangles32`, faces ranges through decode_triangles32 (widened back here), and
-// vertex ranges through decode_float_vertices where it takes them (floats "x y z").
-IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, bool triangles32 = false) {
+// The whole file through the bulk reader, ranges of about `max_bytes`; with `records`
+// 12, faces ranges through decode_triangles32, with 13 through decode_ply_triangles
+// (either widened back here, the PLY records checked against the writer's encode),
+// and vertex ranges through decode_float_vertices where it takes them (floats "x y z").
+IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint32_t records_of = 0) {
+  const bool triangles32 = records_of != 0;
   auto reader = open_ply_bulk_reader(path);
   EXPECT_TRUE(reader) << path;
   IndexedMesh mesh;
@@ -42,13 +44,24 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, bool 
     if (triangles32 && chunk.part == RawChunk::Part::faces) {
       Bytes records(5);  // whatever a reused buffer held is overwritten
       uint64_t first = 0;
-      reader->decode_triangles32(chunk, records, first);
+      if (records_of == ply_triangle_bytes) {
+        reader->decode_ply_triangles(chunk, records, first);
+      } else {
+        reader->decode_triangles32(chunk, records, first);
+      }
       EXPECT_EQ(first, mesh.triangles.size());
-      EXPECT_EQ(records.size() % 12, 0u);
-      for (size_t at = 0; at + 12 <= records.size(); at += 12) {
+      EXPECT_EQ(records.size() % records_of, 0u);
+      const size_t before = mesh.triangles.size();
+      for (size_t at = 0; at + records_of <= records.size(); at += records_of) {
         uint32_t abc[3];
-        std::memcpy(abc, records.data() + at, sizeof abc);
+        std::memcpy(abc, records.data() + at + (records_of == ply_triangle_bytes ? 1 : 0), sizeof abc);
         mesh.triangles.push_back({abc[0], abc[1], abc[2]});
+      }
+      if (records_of == ply_triangle_bytes) {  // the very bytes the writer makes
+        std::string encoded((mesh.triangles.size() - before) * ply_triangle_bytes, '\0');
+        uint64_t max_index = 0;
+        encode_ply_triangles(mesh.triangles.data() + before, mesh.triangles.size() - before, encoded.data(), max_index);
+        EXPECT_EQ(encoded, std::string(reinterpret_cast<const char*>(records.data()), records.size()));
       }
       continue;
     }
@@ -62,9 +75,9 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, bool 
   return mesh;
 }
 
-std::string bulk_bad_input_message(const std::filesystem::path& path, size_t max_bytes, bool triangles32 = false) {
+std::string bulk_bad_input_message(const std::filesystem::path& path, size_t max_bytes, uint32_t records_of = 0) {
   try {
-    bulk_read(path, max_bytes, triangles32);
+    bulk_read(path, max_bytes, records_of);
   } catch (const Error& error) {
     EXPECT_EQ(error.kind(), ErrorKind::bad_input) << error.what();
     return error.what();
@@ -154,9 +167,10 @@ TEST(PlyBulk, DecodesEveryLayoutLikeTheStreamingReaderWhereverRangesEnd) {
     for (size_t max_bytes : {1, 2, 5, 12, 13, 14, 27, 100, 1 << 20}) {
       SCOPED_TRACE(layout.format + " " + layout.count + " " + layout.index + " range " + std::to_string(max_bytes));
       expect_same_mesh(bulk_read(path, max_bytes), expected);
-      // The resident re-encode's decode straight into u32 triples (polygons fanned)
-      // and float positions.
-      expect_same_mesh(bulk_read(path, max_bytes, true), expected);
+      // The resident re-encode's decode straight into u32 triples or PLY face records
+      // (polygons fanned) and float positions.
+      expect_same_mesh(bulk_read(path, max_bytes, 12), expected);
+      expect_same_mesh(bulk_read(path, max_bytes, ply_triangle_bytes), expected);
     }
   }
 }
@@ -212,7 +226,9 @@ TEST(PlyBulk, TruncatedAnywhereFailsExactlyLikeTheStreamingReader) {
       ASSERT_NE(expected.find("file ends inside"), std::string::npos) << expected;
       for (size_t max_bytes : {3, 13, 1 << 20}) {
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "length " << length << " range " << max_bytes;
-        EXPECT_EQ(bulk_bad_input_message(path, max_bytes, true), expected) << "u32, length " << length << " range " << max_bytes;
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 12), expected) << "u32, length " << length << " range " << max_bytes;
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes), expected)
+            << "PLY records, length " << length << " range " << max_bytes;
       }
     }
   }
@@ -261,7 +277,8 @@ TEST(PlyBulk, BadRecordsFailExactlyLikeTheStreamingReader) {
     ASSERT_NE(expected.find(": byte "), std::string::npos) << expected;
     for (size_t max_bytes : {7, 13, 1 << 20}) {
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "range " << max_bytes;
-      EXPECT_EQ(bulk_bad_input_message(path, max_bytes, true), expected) << "u32, range " << max_bytes;
+      EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 12), expected) << "u32, range " << max_bytes;
+      EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes), expected) << "PLY records, range " << max_bytes;
     }
   }
 }
