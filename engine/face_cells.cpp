@@ -3,10 +3,12 @@
 #include <immintrin.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <utility>
 #include <vector>
 
 namespace qemflow::engine {
@@ -17,11 +19,19 @@ namespace {
 // to cover a miss to memory at a few ns a face.
 constexpr uint64_t prefetch_ahead = 16;
 
-void prefetch_face(const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids) {
-  uint32_t v[3];
-  std::memcpy(v, ids, sizeof v);
-  for (uint32_t id : v) {
-    const uint64_t at = uint64_t(id) - first;  // wraps past the end when below
+// A corner's id (u32) at `at`.
+[[gnu::always_inline]] inline uint32_t id_at(const std::byte* at) {
+  uint32_t id;
+  std::memcpy(&id, at, sizeof id);
+  return id;
+}
+
+[[gnu::always_inline]] inline void prefetch_face(const float* xyz, uint64_t first, uint64_t vertices,
+                                                 const std::byte* ids) {
+  // Three scalars, not an array: an array went through the stack every face.
+#pragma GCC unroll 3
+  for (int k = 0; k < 3; ++k) {
+    const uint64_t at = uint64_t(id_at(ids + 4 * k)) - first;  // wraps past the end when below
     if (at < vertices) __builtin_prefetch(xyz + 3 * at);
   }
 }
@@ -222,7 +232,50 @@ bool steps_vector_fit(const GridSteps& steps) {
   return true;
 }
 
-__attribute__((target("avx2"))) void cells_steps_avx2(const GridSteps& steps, const float* xyz, uint64_t first,
+// The loop for exactly M steps an axis, unrolled: the steps stay in registers, the
+// corners never go through the stack (with a run-time count, GCC kept both in memory:
+// ~110 instructions a face).
+// x, y and z loaded apart: 12 bytes copied to a 16-byte temporary and loaded whole
+// missed store forwarding, three times slower than the scalar kernel.
+[[gnu::always_inline]] __attribute__((target("avx2"))) inline __m256d corner_xyz(const float* p) {
+  const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+  return _mm256_cvtps_pd(_mm_movelh_ps(xy, _mm_load_ss(p + 2)));
+}
+
+// The loop for exactly M steps an axis, unrolled: the steps stay in registers and the
+// corners never go through the stack (with a run-time count, GCC kept both in memory:
+// ~110 instructions a face). `lanes`: the M steps, then the drop; `weights` the cell's.
+template <size_t M>
+__attribute__((target("avx2"))) void cells_steps_avx2_m(const double (*lanes)[4], const double* weights,
+                                                         const float* xyz, uint64_t first, uint64_t vertices,
+                                                         const std::byte* ids, uint32_t stride, uint64_t n,
+                                                         uint32_t* cells) {
+  __m256d s[M > 0 ? M : 1];
+  for (size_t j = 0; j < M; ++j) s[j] = _mm256_load_pd(lanes[j]);
+  const __m256d drop = _mm256_load_pd(lanes[M]), weight = _mm256_load_pd(weights), one = _mm256_set1_pd(1.0);
+  for (uint64_t i = 0; i < n; ++i) {
+    if (i + prefetch_ahead < n) prefetch_face(xyz, first, vertices, ids + (i + prefetch_ahead) * stride);
+    const std::byte* face = ids + i * stride;
+    // (a + b) + c per lane, the scalar kernels' sum.
+    const __m256d t = _mm256_add_pd(_mm256_add_pd(corner_xyz(xyz + 3 * (id_at(face) - first)),
+                                                  corner_xyz(xyz + 3 * (id_at(face + 4) - first))),
+                                    corner_xyz(xyz + 3 * (id_at(face + 8) - first)));
+    __m256d idx = _mm256_setzero_pd();
+    for (size_t j = 0; j < M; ++j) idx = _mm256_add_pd(idx, _mm256_and_pd(_mm256_cmp_pd(t, s[j], _CMP_GE_OQ), one));
+    idx = _mm256_andnot_pd(_mm256_cmp_pd(t, drop, _CMP_GE_OQ), idx);
+    const __m256d w = _mm256_mul_pd(idx, weight);
+    const __m128d pair = _mm_add_pd(_mm256_castpd256_pd128(w), _mm256_extractf128_pd(w, 1));
+    cells[i] = uint32_t(_mm_cvtsd_si64(_mm_add_sd(pair, _mm_unpackhi_pd(pair, pair))));
+  }
+  _mm256_zeroupper();
+}
+
+template <size_t... M>
+constexpr auto steps_kernels(std::index_sequence<M...>) {
+  return std::array{&cells_steps_avx2_m<M>...};
+}
+
+void cells_steps_avx2(const GridSteps& steps, const float* xyz, uint64_t first,
                                                        uint64_t vertices, const std::byte* ids, uint32_t stride,
                                                        uint64_t n, uint32_t* cells) {
   const double nan = std::numeric_limits<double>::quiet_NaN();
@@ -235,34 +288,11 @@ __attribute__((target("avx2"))) void cells_steps_avx2(const GridSteps& steps, co
       lanes[j][k] = j == m ? (axis ? axis->drop : nan) : axis && j < axis->steps.size() ? axis->steps[j] : nan;
     }
   }
-  __m256d step[max_vector_steps];
-  for (size_t j = 0; j < m; ++j) step[j] = _mm256_load_pd(lanes[j]);
-  const __m256d drop = _mm256_load_pd(lanes[m]), one = _mm256_set1_pd(1.0);
   // The cell as a dot product: exact in doubles (below 2^32).
   const BlockGrid& grid = steps.grid;
-  const __m256d weight = _mm256_setr_pd(1.0, double(grid.dims[0]), double(grid.dims[0]) * grid.dims[1], 0.0);
-  for (uint64_t i = 0; i < n; ++i) {
-    if (i + prefetch_ahead < n) prefetch_face(xyz, first, vertices, ids + (i + prefetch_ahead) * stride);
-    uint32_t v[3];
-    std::memcpy(v, ids + i * stride, sizeof v);
-    // (a + b) + c per lane, the scalar kernels' sum.
-    __m256d corner[3];
-    for (int c = 0; c < 3; ++c) {
-      // x, y and z loaded apart: 12 bytes copied to a 16-byte temporary and loaded
-      // whole missed store forwarding, three times slower than the scalar kernel.
-      const float* p = xyz + 3 * (v[c] - first);
-      const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
-      corner[c] = _mm256_cvtps_pd(_mm_movelh_ps(xy, _mm_load_ss(p + 2)));
-    }
-    const __m256d t = _mm256_add_pd(_mm256_add_pd(corner[0], corner[1]), corner[2]);
-    __m256d idx = _mm256_setzero_pd();
-    for (size_t j = 0; j < m; ++j) idx = _mm256_add_pd(idx, _mm256_and_pd(_mm256_cmp_pd(t, step[j], _CMP_GE_OQ), one));
-    idx = _mm256_andnot_pd(_mm256_cmp_pd(t, drop, _CMP_GE_OQ), idx);
-    const __m256d w = _mm256_mul_pd(idx, weight);
-    const __m128d pair = _mm_add_pd(_mm256_castpd256_pd128(w), _mm256_extractf128_pd(w, 1));
-    cells[i] = uint32_t(_mm_cvtsd_si64(_mm_add_sd(pair, _mm_unpackhi_pd(pair, pair))));
-  }
-  _mm256_zeroupper();
+  alignas(32) const double weights[4] = {1.0, double(grid.dims[0]), double(grid.dims[0]) * grid.dims[1], 0.0};
+  static constexpr auto kernels = steps_kernels(std::make_index_sequence<max_vector_steps + 1>());
+  kernels[m](lanes, weights, xyz, first, vertices, ids, stride, n, cells);
 }
 
 bool avx2_fits(uint64_t vertices) { return 3 * vertices + 3 <= uint64_t(INT32_MAX); }
