@@ -1,4 +1,5 @@
 #include <oneapi/tbb/parallel_for.h>
+#include <xmmintrin.h>
 
 #include <algorithm>
 #include <bit>
@@ -158,18 +159,59 @@ struct Box {
     }
   }
   // add(p) for n points given as xyz floats, in turn (floats are float-exact).
+  // Four points a step in float lanes (the scalar loop was a chain of dependent
+  // double min/max a coordinate, ~35 instructions a point): min and max are the same
+  // values in float, whose comparisons are the doubles', in any order, but for which
+  // zero of a tie between -0 and +0 came first; an axis whose bound is zero is done
+  // again in turn.
   void add_floats(const float* xyz, size_t n) {
-    double lo[3] = {min[0], min[1], min[2]}, hi[3] = {max[0], max[1], max[2]};
-    for (size_t j = 0; j < n; ++j) {
-      for (int i = 0; i < 3; ++i) {
-        const double x = xyz[3 * j + i];
-        lo[i] = std::min(lo[i], x);
-        hi[i] = std::max(hi[i], x);
+    const Box before = *this;
+    const size_t whole = n / 4 * 4;
+    if (whole > 0) {
+      // Lanes of the three loads of four points: (x y z x), (y z x y), (z x y z).
+      __m128 lo[3], hi[3];
+      for (int k = 0; k < 3; ++k) {
+        lo[k] = _mm_set1_ps(std::numeric_limits<float>::infinity());  // a NaN is then never taken, as in turn
+        hi[k] = _mm_set1_ps(-std::numeric_limits<float>::infinity());
+      }
+      for (size_t j = 0; j < whole; j += 4) {
+        for (int k = 0; k < 3; ++k) {
+          const __m128 v = _mm_loadu_ps(xyz + 3 * j + 4 * k);
+          lo[k] = _mm_min_ps(v, lo[k]);  // (v < lo) ? v : lo, as std::min(lo, v)
+          hi[k] = _mm_max_ps(v, hi[k]);
+        }
+      }
+      alignas(16) float l[3][4], h[3][4];
+      for (int k = 0; k < 3; ++k) {
+        _mm_store_ps(l[k], lo[k]);
+        _mm_store_ps(h[k], hi[k]);
+      }
+      for (int k = 0; k < 3; ++k) {
+        for (int lane = 0; lane < 4; ++lane) {
+          const int axis = (4 * k + lane) % 3;
+          min[axis] = std::min(min[axis], double(l[k][lane]));
+          max[axis] = std::max(max[axis], double(h[k][lane]));
+        }
       }
     }
+    add_floats_in_turn(xyz + 3 * whole, n - whole, {0, 1, 2});
     for (int i = 0; i < 3; ++i) {
-      min[i] = lo[i];
-      max[i] = hi[i];
+      if (min[i] != 0 && max[i] != 0) continue;
+      min[i] = before.min[i];
+      max[i] = before.max[i];
+      add_floats_in_turn(xyz, n, {i});
+    }
+  }
+  void add_floats_in_turn(const float* xyz, size_t n, std::initializer_list<int> axes) {
+    for (int i : axes) {
+      double lo = min[i], hi = max[i];
+      for (size_t j = 0; j < n; ++j) {
+        const double x = xyz[3 * j + i];
+        lo = std::min(lo, x);
+        hi = std::max(hi, x);
+      }
+      min[i] = lo;
+      max[i] = hi;
     }
   }
   // add(p) for each point in turn, the same min, max and float_exact, with the box

@@ -1,6 +1,7 @@
 #include "io/ply_bulk.hpp"
 
 #include <fcntl.h>
+#include <emmintrin.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -57,12 +58,18 @@ struct Triangles32 {
 };
 
 // PLY face records (13 bytes), as the writer encodes them.
+// The data pointer is kept apart, as Triangles32's: its byte stores may alias anything,
+// so v.data() would be loaded again after each record.
 struct PlyTriangles {
   Bytes& v;
+  std::byte* at = v.data();
   size_t size() const { return v.size() / ply_triangle_bytes; }
-  void resize(size_t n) { v.resize(n * ply_triangle_bytes); }
+  void resize(size_t n) {
+    v.resize(n * ply_triangle_bytes);
+    at = v.data();
+  }
   void set(size_t i, uint64_t a, uint64_t b, uint64_t c) {
-    put_ply_triangle(uint32_t(a), uint32_t(b), uint32_t(c), v.data() + i * ply_triangle_bytes);
+    put_ply_triangle(uint32_t(a), uint32_t(b), uint32_t(c), at + i * ply_triangle_bytes);
   }
 };
 
@@ -207,14 +214,27 @@ bool PlyBulkReader::decode_float_vertices(const RawChunk& chunk, float* xyz, uin
   float* out = xyz + 3 * vertices_done_;
   const char* p = chunk.bytes.get();
   uint32_t* bits = reinterpret_cast<uint32_t*>(out);
+  // All exponent bits set: infinite or NaN. One branch-free sweep (fused with the copy
+  // of a little-endian file, four floats a step: -O2 leaves the loop scalar), then the first one.
+  const size_t floats = 3 * n, whole = floats / 4 * 4;
+  const __m128i exponent = _mm_set1_epi32(0x7f800000);
+  __m128i any = _mm_setzero_si128();
   if (header_.format == MeshFormat::ply_binary_be) {
-    for (size_t i = 0; i < 3 * n; ++i) bits[i] = load32<true>(p + 4 * i);
+    for (size_t i = 0; i < floats; ++i) bits[i] = load32<true>(p + 4 * i);
+    for (size_t i = 0; i < whole; i += 4) {
+      const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(bits + i));
+      any = _mm_or_si128(any, _mm_cmpeq_epi32(_mm_and_si128(v, exponent), exponent));
+    }
   } else {
-    std::memcpy(out, p, 12 * n);
+    for (size_t i = 0; i < whole; i += 4) {
+      const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p + 4 * i));
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(bits + i), v);
+      any = _mm_or_si128(any, _mm_cmpeq_epi32(_mm_and_si128(v, exponent), exponent));
+    }
+    std::memcpy(bits + whole, p + 4 * whole, 4 * (floats - whole));
   }
-  // All exponent bits set: infinite or NaN. One branch-free sweep, then the first one.
-  bool finite = true;
-  for (size_t i = 0; i < 3 * n; ++i) finite &= (bits[i] & 0x7f800000u) != 0x7f800000u;
+  bool finite = _mm_movemask_epi8(any) == 0;
+  for (size_t i = whole; i < floats; ++i) finite &= (bits[i] & 0x7f800000u) != 0x7f800000u;
   if (!finite) {
     for (size_t i = 0; i < n; ++i) {
       const Point v{out[3 * i], out[3 * i + 1], out[3 * i + 2]};
@@ -386,13 +406,15 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, uint64_t& first_triangle
       size_t limit = size_t(std::min<uint64_t>(face_count_ - faces_done_, (chunk.size - pos) / 13));
       if (out.size() < used + limit) out.resize(used + limit);
       size_t i = 0;
+      // In a local: the records' byte stores may alias the member.
+      const uint64_t vertex_count = vertex_count_;
       for (; i < limit; ++i) {
         const char* r = p + pos + i * 13;
         if (static_cast<uint8_t>(*r) != 3) break;
         uint32_t a = load32<Swap>(r + 1), b = load32<Swap>(r + 5), c = load32<Swap>(r + 9);
         // For signed int, negative values become huge as uint32 and fail this test too.
-        if (a >= vertex_count_ || b >= vertex_count_ || c >= vertex_count_) {
-          uint32_t bad = a >= vertex_count_ ? a : b >= vertex_count_ ? b : c;
+        if (a >= vertex_count || b >= vertex_count || c >= vertex_count) {
+          uint32_t bad = a >= vertex_count ? a : b >= vertex_count ? b : c;
           int64_t shown = signed_index ? int64_t{static_cast<int32_t>(bad)} : int64_t{bad};
           throw_bad_input(name_, byte_place(chunk.offset + pos + i * 13),
                           "face " + std::to_string(faces_done_ + i) + " has vertex index " + std::to_string(shown) +
