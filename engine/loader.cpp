@@ -1,5 +1,5 @@
 #include <oneapi/tbb/parallel_for.h>
-#include <xmmintrin.h>
+#include <emmintrin.h>
 
 #include <algorithm>
 #include <bit>
@@ -186,23 +186,71 @@ struct Box {
         _mm_store_ps(l[k], lo[k]);
         _mm_store_ps(h[k], hi[k]);
       }
+      fold_lanes(l, h);
+    }
+    add_in_turn(xyz + 3 * whole, n - whole, {0, 1, 2});
+    redo_zero_bounds(before, xyz, n);
+  }
+  // add(p) for each point in turn: the same min, max and float_exact. Two points a
+  // step in double lanes, as add_floats (the scalar loop's dependent min, max and
+  // float test a coordinate were half the out-of-core load's transform).
+  void add(const Point* points, size_t n) {
+    static_assert(sizeof(Point) == 3 * sizeof(double));
+    const Box before = *this;
+    const double* xyz = points[0].data();
+    const size_t whole = n / 2 * 2;
+    __m128d exact = _mm_castsi128_pd(_mm_set1_epi32(-1));
+    if (whole > 0) {
+      // Lanes of the three loads of two points: (x y), (z x), (y z).
+      __m128d lo[3], hi[3];
       for (int k = 0; k < 3; ++k) {
-        for (int lane = 0; lane < 4; ++lane) {
-          const int axis = (4 * k + lane) % 3;
-          min[axis] = std::min(min[axis], double(l[k][lane]));
-          max[axis] = std::max(max[axis], double(h[k][lane]));
+        lo[k] = _mm_set1_pd(std::numeric_limits<double>::infinity());
+        hi[k] = _mm_set1_pd(-std::numeric_limits<double>::infinity());
+      }
+      for (size_t j = 0; j < whole; j += 2) {
+        for (int k = 0; k < 3; ++k) {
+          const __m128d v = _mm_loadu_pd(xyz + 3 * j + 2 * k);
+          lo[k] = _mm_min_pd(v, lo[k]);
+          hi[k] = _mm_max_pd(v, hi[k]);
+          exact = _mm_and_pd(exact, _mm_cmpeq_pd(_mm_cvtps_pd(_mm_cvtpd_ps(v)), v));  // NaN: not exact
         }
       }
+      alignas(16) double l[3][2], h[3][2];
+      for (int k = 0; k < 3; ++k) {
+        _mm_store_pd(l[k], lo[k]);
+        _mm_store_pd(h[k], hi[k]);
+      }
+      fold_lanes(l, h);
     }
-    add_floats_in_turn(xyz + 3 * whole, n - whole, {0, 1, 2});
+    bool all_exact = _mm_movemask_pd(exact) == 3;
+    for (size_t i = 3 * whole; i < 3 * n; ++i) all_exact &= double(float(xyz[i])) == xyz[i];
+    add_in_turn(xyz + 3 * whole, n - whole, {0, 1, 2});
+    redo_zero_bounds(before, xyz, n);
+    float_exact = float_exact && all_exact;
+  }
+  // The lanes' bounds into the box: lane `lane` of load k holds axis (W k + lane) % 3.
+  template <class T, int W>
+  void fold_lanes(const T (&l)[3][W], const T (&h)[3][W]) {
+    for (int k = 0; k < 3; ++k) {
+      for (int lane = 0; lane < W; ++lane) {
+        const int axis = (W * k + lane) % 3;
+        min[axis] = std::min(min[axis], double(l[k][lane]));
+        max[axis] = std::max(max[axis], double(h[k][lane]));
+      }
+    }
+  }
+  // Axes whose bound came out zero, from `before` with the n points in turn.
+  template <class T>
+  void redo_zero_bounds(const Box& before, const T* xyz, size_t n) {
     for (int i = 0; i < 3; ++i) {
       if (min[i] != 0 && max[i] != 0) continue;
       min[i] = before.min[i];
       max[i] = before.max[i];
-      add_floats_in_turn(xyz, n, {i});
+      add_in_turn(xyz, n, {i});
     }
   }
-  void add_floats_in_turn(const float* xyz, size_t n, std::initializer_list<int> axes) {
+  template <class T>
+  void add_in_turn(const T* xyz, size_t n, std::initializer_list<int> axes) {
     for (int i : axes) {
       double lo = min[i], hi = max[i];
       for (size_t j = 0; j < n; ++j) {
@@ -214,26 +262,6 @@ struct Box {
       max[i] = hi;
     }
   }
-  // add(p) for each point in turn, the same min, max and float_exact, with the box
-  // in locals: through the members, each point's min, max and float test waited on
-  // the last point's stores (half the out-of-core load's transform).
-  void add(const Point* points, size_t n) {
-    double lo[3] = {min[0], min[1], min[2]}, hi[3] = {max[0], max[1], max[2]};
-    bool exact = true;
-    for (size_t j = 0; j < n; ++j) {
-      for (int i = 0; i < 3; ++i) {
-        const double x = points[j][i];
-        lo[i] = std::min(lo[i], x);
-        hi[i] = std::max(hi[i], x);
-        exact &= double(float(x)) == x;
-      }
-    }
-    for (int i = 0; i < 3; ++i) {
-      min[i] = lo[i];
-      max[i] = hi[i];
-    }
-    float_exact = float_exact && exact;
-  }
   void add(const Box& other) {
     for (int i = 0; i < 3; ++i) {
       min[i] = std::min(min[i], other.min[i]);
@@ -242,6 +270,16 @@ struct Box {
     float_exact = float_exact && other.float_exact;
   }
 };
+
+// Doubles to floats, four a step (-O2 leaves the loop scalar); each float(x).
+void narrow_to_floats(const double* in, size_t n, float* out) {
+  const size_t whole = n / 4 * 4;
+  for (size_t i = 0; i < whole; i += 4) {
+    const __m128 lo = _mm_cvtpd_ps(_mm_loadu_pd(in + i)), hi = _mm_cvtpd_ps(_mm_loadu_pd(in + i + 2));
+    _mm_storeu_ps(out + i, _mm_movelh_ps(lo, hi));
+  }
+  for (size_t i = whole; i < n; ++i) out[i] = float(in[i]);
+}
 
 Point barycenter(const std::array<Point, 3>& p) {
   return {(p[0][0] + p[1][0] + p[2][0]) / 3, (p[0][1] + p[1][1] + p[2][1]) / 3,
@@ -263,6 +301,21 @@ uint32_t local_bucket(uint64_t lo, uint64_t hi, uint64_t chunk) {
   const uint64_t lo_chunk = lo / chunk;
   return hi < (lo_chunk + 2) * chunk ? uint32_t(lo_chunk) : UINT32_MAX;
 }
+
+// local_bucket without a division a face (a 64-bit div was most of the out-of-core
+// face classification's time): the quotient from a reciprocal in double, within one
+// of the true one below 2^52, then corrected. The same buckets.
+struct LocalBuckets {
+  uint64_t chunk;
+  double reciprocal = 1.0 / double(chunk);
+  uint32_t operator()(uint64_t lo, uint64_t hi) const {
+    if (lo >= (uint64_t(1) << 52)) return local_bucket(lo, hi, chunk);
+    uint64_t q = uint64_t(double(lo) * reciprocal);
+    if (q * chunk > lo) --q;
+    else if ((q + 1) * chunk <= lo) ++q;
+    return hi < (q + 2) * chunk ? uint32_t(q) : UINT32_MAX;
+  }
+};
 
 // fn(cell, begin, end) for each run [begin, end) of equal cells: neighbouring faces
 // mostly share a block or bucket, so records are filed a run at a time.
@@ -1261,8 +1314,7 @@ class Loader {
           // Every coordinate of the batch is a float: the frame holds floats, half the
           // scratch bytes (load_vertex_window widens them back, exactly).
           UninitializedVector<float> xyz(3 * n);
-          for (uint64_t i = 0; i < n; ++i)
-            for (int k = 0; k < 3; ++k) xyz[3 * i + k] = float(batch.vertices[done + i][k]);
+          narrow_to_floats(batch.vertices[done].data(), 3 * n, xyz.data());
           item.vertex_frames.emplace_back(c, encode_frame(first, float_vertex_record_size, xyz.data(), n, scratch_.codec()));
         } else {
           item.vertex_frames.emplace_back(
@@ -1285,6 +1337,7 @@ class Loader {
       item.block_records.resize(faces * id_triangle32_record_size);
       item.cells.resize(faces);
       uint64_t largest = 0;
+      const LocalBuckets buckets{chunk};
       for (size_t i = 0; i < faces; ++i) {
         const Triangle& t = batch.triangles[i];
         const uint64_t lo = std::min({t[0], t[1], t[2]}), hi = std::max({t[0], t[1], t[2]});
@@ -1295,7 +1348,7 @@ class Loader {
         std::byte* record = item.block_records.data() + i * id_triangle32_record_size;
         put_u32_pair(record, batch.first_triangle + i, t[0]);
         put_u32_pair(record + 8, t[1], t[2]);
-        item.cells[i] = local_bucket(lo, hi, chunk);
+        item.cells[i] = buckets(lo, hi);
       }
       item.max_index = largest;
       item.classified = true;
