@@ -1,8 +1,10 @@
 #include "engine/governor.hpp"
 
 #include <algorithm>
+#include <optional>
 
 #include "config/size.hpp"
+#include "engine/trace.hpp"
 #include "util/error.hpp"
 
 namespace qemflow::engine {
@@ -182,12 +184,14 @@ Lease Governor::grant_when_free(const std::string& owner, uint64_t min, uint64_t
   {
     std::unique_lock lock(mutex_);
     Owner* record = owner_record(owner);
+    std::optional<Waiting> waiting;  // for another lease's release: not compute busy
     bool denied = false;
     while (capacity() - in_use_ < min) {
       if (!denied) ++record->stats.denials;
       denied = true;
       if (on_available) waiters_.push_back({min, std::move(*on_available)});
       if (!wait || (stop && stop())) return {};
+      if (!waiting) waiting.emplace();
       released_.wait(lock);
     }
     const uint64_t free = capacity() - in_use_;

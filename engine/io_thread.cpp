@@ -29,6 +29,7 @@ void IoThread::submit(const char* name, std::function<void()> task, ErrorHandler
 }
 
 void IoThread::drain() {
+  Waiting waiting;
   std::unique_lock lock(mutex_);
   idle_.wait(lock, [this] { return queue_.empty() && !running_task_; });
 }
@@ -40,6 +41,9 @@ uint64_t IoThread::bytes_in_flight() const {
 
 void IoThread::loop() {
   if (trace_) trace_->name_thread("io");
+  // The thread's CPU is what Activity takes out of the process's to leave the compute
+  // threads' (it is ~0 between tasks: the thread sleeps).
+  const double cpu_start = thread_cpu_seconds();
   std::unique_lock lock(mutex_);
   for (;;) {
     wake_.wait(lock, [this] { return stop_ || !queue_.empty(); });
@@ -58,6 +62,7 @@ void IoThread::loop() {
     }
     uint64_t written = task.write_bytes;
     task = {};  // frees captured buffers before the next task
+    if (activity_) activity_->set_io_cpu_seconds(thread_cpu_seconds() - cpu_start);
     lock.lock();
     in_flight_ -= written;
     running_task_ = false;

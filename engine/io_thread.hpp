@@ -10,7 +10,8 @@
 //   submitted with (never lost, never kills the thread).
 // - Tasks must not block on compute work (they may block on the disk only); this is
 //   what makes "compute waits for I/O" deadlock-free.
-// - drain() waits until every task queued so far has finished.
+// - drain() waits until every task queued so far has finished. While call() and drain()
+//   wait, the calling thread's compute span does not count it busy (Waiting).
 // - bytes_in_flight: bytes queued for writing; shown as a trace counter.
 // - The destructor drains and joins.
 #include <condition_variable>
@@ -46,6 +47,7 @@ class IoThread {
     auto future = task.get_future();
     auto shared = std::make_shared<std::packaged_task<R()>>(std::move(task));
     submit(name, [shared] { (*shared)(); }, {});
+    Waiting waiting;
     return future.get();
   }
 

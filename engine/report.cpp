@@ -59,7 +59,7 @@ std::string format_summary(const nlohmann::json& r) {
   char line[512];
   std::snprintf(line, sizeof line,
                 "wall %.2f s | peak RSS %s of %s budget | I/O busy %.0f%% | compute busy %.0f%% "
-                "(%.0f%% of %d threads) | overlap %.0f%% of I/O time",
+                "(CPU ~%.0f%% of %d threads) | overlap %.0f%% of I/O time",
                 wall, config::format_size(r.value("peak_rss_bytes", uint64_t(0))).c_str(),
                 config::format_size(r.value("budget_bytes", uint64_t(0))).c_str(), pct(io),
                 pct(r.value("compute_busy_seconds", 0.0)),

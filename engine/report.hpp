@@ -15,8 +15,9 @@
 namespace qemflow::engine {
 
 nlohmann::json job_report(Job& job, const Governor& governor);
-// One paragraph for stderr: wall time, peak RSS / budget, I/O and compute busy,
-// overlap; from a report made by job_report().
+// One paragraph for stderr: wall time, peak RSS / budget, I/O and compute busy (with
+// the compute threads' CPU as a rough share of threads x wall: see
+// Activity::Totals::compute_thread_seconds), overlap; from a report made by job_report().
 std::string format_summary(const nlohmann::json& report);
 // Plain file write (the report is not pipeline data); Error(resource) on failure.
 void write_json(const std::filesystem::path& path, const nlohmann::json& json);

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstring>
 #include <numeric>
+#include <optional>
 
 #include "util/error.hpp"
 
@@ -114,8 +115,10 @@ void BucketSpill::flush_largest() {
 
 void BucketSpill::wait_for_room(uint64_t bytes) {
   std::unique_lock lock(shared_->mutex);
+  std::optional<Waiting> waiting;  // on the I/O thread's writes: not compute busy
   while (shared_->in_flight > 0 && shared_->in_flight + bytes > in_flight_limit_) {
     if (job_.stopped()) break;
+    if (!waiting) waiting.emplace();
     shared_->written.wait_for(lock, std::chrono::milliseconds(20));
   }
   shared_->in_flight += bytes;

@@ -89,6 +89,9 @@ void run_stream_pass(Job& job, const StreamPass<Item>& pass) {
   namespace flow = tbb::flow;
   if (!pass.next_item_bytes) job.governor().require_fits(job.owner(pass.owner), pass.min_item_bytes);
   StageStats& stage = job.stage(pass.stage);
+  // The pass's nodes count their own work (their spans); the calling thread only waits,
+  // or runs those nodes, while a span around the pass (an epoch's gather) is open.
+  Waiting waiting;
   job.arena().execute([&] {
     flow::graph graph;
     using Source = flow::async_node<flow::continue_msg, Msg>;

@@ -2,6 +2,9 @@
 
 #include <oneapi/tbb/task_arena.h>
 
+#include <time.h>
+
+#include <algorithm>
 #include <cstdio>
 #include <memory>
 
@@ -9,13 +12,25 @@
 
 namespace qemflow::engine {
 
-Activity::Activity() : start_(Clock::now()), last_(start_) {}
+namespace {
+double cpu_seconds(clockid_t clock) {
+  timespec t{};
+  clock_gettime(clock, &t);
+  return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+}
+
+thread_local Span::ThreadState t_compute;
+}  // namespace
+
+double process_cpu_seconds() { return cpu_seconds(CLOCK_PROCESS_CPUTIME_ID); }
+double thread_cpu_seconds() { return cpu_seconds(CLOCK_THREAD_CPUTIME_ID); }
+
+Activity::Activity() : start_(Clock::now()), last_(start_), cpu_start_(process_cpu_seconds()) {}
 
 void Activity::advance(Clock::time_point now) {
   double dt = std::chrono::duration<double>(now - last_).count();
   if (io_active_ > 0) io_ += dt;
   if (compute_active_ > 0) compute_ += dt;
-  compute_threads_ += dt * compute_active_;
   if (io_active_ > 0 && compute_active_ > 0) both_ += dt;
   last_ = now;
 }
@@ -35,7 +50,8 @@ Activity::Totals Activity::totals() const {
   t.wall_seconds = std::chrono::duration<double>(last_ - start_).count();
   t.io_busy_seconds = io_;
   t.compute_busy_seconds = compute_;
-  t.compute_thread_seconds = compute_threads_;
+  t.compute_thread_seconds =
+      std::max(0.0, process_cpu_seconds() - cpu_start_ - io_cpu_.load(std::memory_order_relaxed));
   t.overlap_seconds = both_;
   return t;
 }
@@ -64,14 +80,20 @@ void Trace::name_thread(const std::string& name) {
   thread_names_[thread_id()] = name;
 }
 
-void Trace::span(const char* name, double start_us, double end_us, uint64_t bytes) {
+void Trace::register_thread() {
+  if (!enabled()) return;
+  std::lock_guard lock(mutex_);
+  thread_id();
+}
+
+void Trace::span(const char* name, double start_us, double end_us, uint64_t bytes, uint32_t patch) {
   if (!enabled()) return;
   std::lock_guard lock(mutex_);
   if (events_.size() >= max_events_) {
     ++dropped_;
     return;
   }
-  events_.push_back({name, start_us, end_us - start_us, bytes, thread_id()});
+  events_.push_back({name, start_us, end_us - start_us, bytes, thread_id(), patch});
 }
 
 void Trace::counter(const char* name, double value) {
@@ -85,7 +107,7 @@ void Trace::counter(const char* name, double value) {
     ++dropped_;
     return;
   }
-  events_.push_back({name, now, -1, uint64_t(value), 0});
+  events_.push_back({name, now, -1, uint64_t(value), 0, kNoPatch});
 }
 
 size_t Trace::size() const {
@@ -134,9 +156,11 @@ void Trace::write(const std::filesystem::path& path) const {
       std::fprintf(f, ",\n{\"ph\":\"C\",\"pid\":1,\"name\":%s,\"ts\":%.3f,\"args\":{\"bytes\":%llu}}",
                    json_string(e.name).c_str(), e.ts, static_cast<unsigned long long>(e.value));
     } else {
-      std::fprintf(f, ",\n{\"ph\":\"X\",\"pid\":1,\"tid\":%u,\"name\":%s,\"ts\":%.3f,\"dur\":%.3f,\"args\":{\"bytes\":%llu}}",
+      char patch[32] = "";
+      if (e.patch != kNoPatch) std::snprintf(patch, sizeof patch, ",\"patch\":%u", e.patch);
+      std::fprintf(f, ",\n{\"ph\":\"X\",\"pid\":1,\"tid\":%u,\"name\":%s,\"ts\":%.3f,\"dur\":%.3f,\"args\":{\"bytes\":%llu%s}}",
                    e.tid, json_string(e.name).c_str(), e.ts, e.dur,
-                   static_cast<unsigned long long>(e.value));
+                   static_cast<unsigned long long>(e.value), patch);
     }
   }
   std::fprintf(f, "\n],\"otherData\":{\"dropped_events\":%llu}}\n",
@@ -147,12 +171,44 @@ void Trace::write(const std::filesystem::path& path) const {
 Span::Span(Trace* trace, Activity* activity, const char* name, Kind kind, uint64_t bytes)
     : trace_(trace), activity_(activity), name_(name), kind_(kind), bytes_(bytes) {
   if (trace_ && trace_->enabled()) start_us_ = trace_->now_us();
-  if (activity_) kind_ == Kind::io ? activity_->io_begin() : activity_->compute_begin();
+  if (!activity_) return;
+  if (kind_ == Kind::io) {
+    activity_->io_begin();
+    return;
+  }
+  if (t_compute.depth > 0 && t_compute.activity == activity_) {
+    ++t_compute.depth;
+    return;
+  }
+  // The first of this thread's spans (or one of another job's inside it: counted apart).
+  saved_ = t_compute;
+  t_compute = {activity_, 1};
+  counted_ = true;
+  activity_->compute_begin();
 }
 
 Span::~Span() {
-  if (activity_) kind_ == Kind::io ? activity_->io_end() : activity_->compute_end();
-  if (trace_ && trace_->enabled()) trace_->span(name_, start_us_, trace_->now_us(), bytes_);
+  if (activity_) {
+    if (kind_ == Kind::io) {
+      activity_->io_end();
+    } else if (counted_) {
+      activity_->compute_end();
+      t_compute = saved_;
+    } else {
+      --t_compute.depth;
+    }
+  }
+  if (trace_ && trace_->enabled()) trace_->span(name_, start_us_, trace_->now_us(), bytes_, patch_);
+}
+
+Waiting::Waiting() : saved_(t_compute) {
+  if (saved_.depth > 0) saved_.activity->compute_end();
+  t_compute = {};
+}
+
+Waiting::~Waiting() {
+  if (saved_.depth > 0) saved_.activity->compute_begin();
+  t_compute = saved_;
 }
 
 }  // namespace qemflow::engine

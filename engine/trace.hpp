@@ -9,6 +9,11 @@
 //   trace's lease); beyond it they are counted as dropped, never grown.
 // - Activity measures, with or without a trace file, how long the I/O thread and the
 //   compute threads were busy, and how long both were busy at once (the overlap).
+//   Busy time comes from spans: a thread is computing while it is inside a compute
+//   Span (nested spans on one thread count it once) and not inside a Waiting scope
+//   (waiting for the I/O thread, or for a stream pass whose own spans count its work).
+//   The compute threads' CPU is not: a span around a parallel_for is one thread's span
+//   while every worker computes, so compute_thread_seconds comes from CPU clocks.
 // Thread safety: every member may be called from any thread.
 #include <atomic>
 #include <chrono>
@@ -29,14 +34,24 @@ class Activity {
   Activity();
   void io_begin() { change(+1, 0); }
   void io_end() { change(-1, 0); }
+  // A thread starts / stops computing (Span and Waiting call these once per thread).
   void compute_begin() { change(0, +1); }
   void compute_end() { change(0, -1); }
+  // The I/O thread's CPU seconds so far (its own thread CPU clock), set by the I/O
+  // thread after each task.
+  void set_io_cpu_seconds(double seconds) { io_cpu_.store(seconds, std::memory_order_relaxed); }
 
   struct Totals {
     double wall_seconds = 0;
     double io_busy_seconds = 0;       // the I/O thread was working
     double compute_busy_seconds = 0;  // at least one compute thread was working
-    double compute_thread_seconds = 0;  // summed over compute threads
+    // CPU seconds the process used since the job began, less the I/O thread's: what the
+    // compute threads (the job's own thread and TBB's) ran, including the parallel_for
+    // work inside a span and the work outside any span (planning between phases). Also
+    // counted: TBB workers spinning before they sleep, and, in a process running
+    // several jobs at once, the other jobs' threads (only their sum is known). So the
+    // summary line prints it as a whole percentage of threads x wall, no finer.
+    double compute_thread_seconds = 0;
     double overlap_seconds = 0;       // both at once
   };
   Totals totals() const;
@@ -46,9 +61,15 @@ class Activity {
   void advance(Clock::time_point now);  // under lock
   mutable std::mutex mutex_;
   Clock::time_point start_, last_;
+  double cpu_start_;  // process CPU seconds at the job's start
+  std::atomic<double> io_cpu_{0};
   int io_active_ = 0, compute_active_ = 0;
-  double io_ = 0, compute_ = 0, compute_threads_ = 0, both_ = 0;
+  double io_ = 0, compute_ = 0, both_ = 0;
 };
+
+// CPU seconds of the process / of the calling thread (CLOCK_*_CPUTIME_ID).
+double process_cpu_seconds();
+double thread_cpu_seconds();
 
 class Trace {
  public:
@@ -59,8 +80,14 @@ class Trace {
 
   // Names the calling thread's track (e.g. "io").
   void name_thread(const std::string& name);
+  // Gives the calling thread its track now, named as its first span would name it
+  // ("compute-N" inside the job's arena): a thread whose first span would come from
+  // outside the arena (the job's own thread, between phases) gets its arena name.
+  void register_thread();
   double now_us() const;
-  void span(const char* name, double start_us, double end_us, uint64_t bytes = 0);
+  static constexpr uint32_t kNoPatch = UINT32_MAX;
+  // `patch`: the patch (owner) the span worked on, an arg of the event unless kNoPatch.
+  void span(const char* name, double start_us, double end_us, uint64_t bytes = 0, uint32_t patch = kNoPatch);
   // Rate-limited to one sample per counter per 200 µs (the last value always wins at
   // the next sample).
   void counter(const char* name, double value);
@@ -79,6 +106,7 @@ class Trace {
     double ts, dur;    // µs; dur < 0 marks a counter
     uint64_t value;
     uint32_t tid;
+    uint32_t patch;  // kNoPatch: none
   };
   uint32_t thread_id();  // under lock
   const size_t max_events_;
@@ -92,7 +120,8 @@ class Trace {
 };
 
 // A span on the calling thread: traced if the trace is on, and counted as compute or
-// I/O busy time.
+// I/O busy time. A compute span inside another of the same Activity on the same thread
+// is traced but not counted again (the thread is one compute thread either way).
 class Span {
  public:
   enum class Kind { compute, io };
@@ -102,6 +131,16 @@ class Span {
   Span(const Span&) = delete;
   Span& operator=(const Span&) = delete;
   void set_bytes(uint64_t bytes) { bytes_ = bytes; }
+  void set_patch(uint32_t patch) { patch_ = patch; }
+  // The name is read when the span ends (a phase is named once it is known).
+  void set_name(const char* name) { name_ = name; }
+  // Ends the span without a trace event (its busy time still counts).
+  void untraced() { trace_ = nullptr; }
+
+  struct ThreadState {
+    Activity* activity = nullptr;
+    int depth = 0;  // compute spans of `activity` open on this thread (counted once)
+  };
 
  private:
   Trace* trace_;
@@ -109,7 +148,24 @@ class Span {
   const char* name_;
   Kind kind_;
   uint64_t bytes_;
+  uint32_t patch_ = Trace::kNoPatch;
   double start_us_ = 0;
+  bool counted_ = false;  // this span counted its thread as computing
+  ThreadState saved_;
+};
+
+// The calling thread waits (for the I/O thread, or for a stream pass whose own spans
+// count its work): its enclosing compute span, if any, does not count it as computing
+// until the scope ends. Spans begun inside the scope count afresh.
+class Waiting {
+ public:
+  Waiting();
+  ~Waiting();
+  Waiting(const Waiting&) = delete;
+  Waiting& operator=(const Waiting&) = delete;
+
+ private:
+  Span::ThreadState saved_;
 };
 
 }  // namespace qemflow::engine

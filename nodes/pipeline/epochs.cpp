@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <unordered_map>
 
 #include <oneapi/tbb/enumerable_thread_specific.h>
@@ -669,31 +670,42 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
 
 // ---------------------------------------------------------------- patches
 
-double process_cpu_seconds() {
-  timespec t{};
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
-}
-
 // OocStats::phase_wall / phase_cpu: charge(phase) adds the time since the previous
-// charge (or the clock's start) to `phase`.
+// charge (or the clock's start) to `phase`, and ends a compute span named for it (the
+// patch's owner as its arg) on the calling thread's track, the patch loop's: its
+// parallel_for work inside counts in Activity's compute CPU, the thread in its busy
+// time (less its waits on the I/O thread and on stream passes, whose own spans count).
 enum Phase : size_t { kGather, kBuild, kSetup, kFirstRound, kRounds, kSummary, kExtract, kExport };
 class PhaseClock {
  public:
-  explicit PhaseClock(OocStats& stats) : stats_(stats) {}
+  PhaseClock(Job& job, OocStats& stats, uint32_t owner) : job_(job), stats_(stats), owner_(owner) { open(); }
+  // The time after the last charge is no phase's (a split part's return, say).
+  ~PhaseClock() { span_->untraced(); }
+  PhaseClock(const PhaseClock&) = delete;
+  PhaseClock& operator=(const PhaseClock&) = delete;
   void charge(Phase phase) {
     const auto wall = std::chrono::steady_clock::now();
-    const double cpu = process_cpu_seconds();
+    const double cpu = engine::process_cpu_seconds();
     stats_.phase_wall[phase] += std::chrono::duration<double>(wall - wall_).count();
     stats_.phase_cpu[phase] += cpu - cpu_;
     wall_ = wall;
     cpu_ = cpu;
+    span_->set_name(OocStats::kPhaseNames[phase]);
+    span_.reset();
+    open();
   }
 
  private:
+  void open() {
+    span_.emplace(&job_.trace(), &job_.activity(), "phase");
+    span_->set_patch(owner_);
+  }
+  Job& job_;
   OocStats& stats_;
+  const uint32_t owner_;
   std::chrono::steady_clock::time_point wall_ = std::chrono::steady_clock::now();
-  double cpu_ = process_cpu_seconds();
+  double cpu_ = engine::process_cpu_seconds();
+  std::optional<engine::Span> span_;
 };
 
 struct PatchPlan {
@@ -1488,7 +1500,7 @@ struct Runner {
                 const DecimateParams& params, std::vector<std::vector<Candidate>>* candidates, uint64_t needed,
                 RoundSummary& total) {
     const uint32_t p = part.owner;
-    PhaseClock clock(stats);
+    PhaseClock clock(job, stats, p);
     for (;;) {
       job.check();
       const int rings = this->rings();
@@ -1689,6 +1701,9 @@ uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices, bool small_lo
 }
 
 OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const OocOptions& options) {
+  // The phases' spans end on this thread, some outside the arena: its track is named
+  // for its arena slot ("compute-0"), not "thread-N".
+  job.arena().execute([&] { job.trace().register_thread(); });
   OocResult result;
   OocStats& st = result.stats;
   st.input_faces = mesh.face_count;
@@ -1869,26 +1884,41 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
                    capacity_for_finish(finish_bytes));
   Lease lease = job.governor().acquire(job.owner("in core"), std::min(capacity, finish_bytes),
                                        std::min(capacity, finish_bytes), [&] { return job.stopped(); });
+  // The finish's stages as compute spans on this thread's track, like the patches' phases.
+  std::optional<engine::Span> stage;
+  auto begin = [&](const char* name) {
+    stage.reset();
+    stage.emplace(&job.trace(), &job.activity(), name);
+  };
   PatchInput whole;
   {
+    begin("finish gather");
     Gathered g = load_state(job, scratch, *state);
+    begin("finish build");
     job.arena().execute([&] { whole = build_whole_patch(std::move(g), runner.carry_bests); });
   }
+  stage.reset();
   replace_state(new_state());
   job.arena().execute([&] {
-    PatchDecimator d(std::move(whole), params);
-    st.in_core_carried_bests = d.restored_bests();
-    const EpochRunStats run = run_epochs(d, st.target_faces, epoch, [&](uint64_t, uint64_t faces) {
-      job.progress(runner.removed_share(faces), "in core");
-    });
-    st.rounds += run.rounds;
-    st.epochs += run.epochs;
-    PatchOutput out = d.extract();
-    result.points.resize(out.positions.size());
-    for (size_t i = 0; i < out.positions.size(); ++i) result.points[i] = out.positions[i];
-    result.triangles.resize(out.faces.size());
-    for (size_t i = 0; i < out.faces.size(); ++i)
-      result.triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
+    {
+      begin("finish setup");
+      PatchDecimator d(std::move(whole), params);
+      st.in_core_carried_bests = d.restored_bests();
+      begin("finish rounds");
+      const EpochRunStats run = run_epochs(d, st.target_faces, epoch, [&](uint64_t, uint64_t faces) {
+        job.progress(runner.removed_share(faces), "in core");
+      });
+      st.rounds += run.rounds;
+      st.epochs += run.epochs;
+      begin("finish extract");
+      PatchOutput out = d.extract();
+      result.points.resize(out.positions.size());
+      for (size_t i = 0; i < out.positions.size(); ++i) result.points[i] = out.positions[i];
+      result.triangles.resize(out.faces.size());
+      for (size_t i = 0; i < out.faces.size(); ++i)
+        result.triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
+    }  // the decimator's destruction in the extract's span
+    stage.reset();
   });
   st.in_core_peak_rss = finish_window.peak();
   st.output_faces = result.triangles.size();

@@ -10,6 +10,8 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <map>
+#include <set>
 #include <string>
 #include <tuple>
 
@@ -592,6 +594,57 @@ TEST(SimplifyOoc, ATraceAtASmallBudgetIsNoHang) {
   EXPECT_GE(r["out_of_core_epochs"].get<int>(), 1);
   EXPECT_LE(r["peak_rss_bytes"].get<uint64_t>(), 80ull << 20);
   expect_out_equals_in_core(dir, mesh, "--ratio 0.01");
+}
+
+// --trace and the busy times see the work of an out-of-core simplify (issue 4): its
+// patches' phases and the in-core finish were no spans, so the trace showed ~3 of 15 s
+// of the 1M demo and compute_busy_seconds 1.7 of them. Now each phase of each patch
+// part is a span named for it (the report's patch_phases), with the patch as its arg,
+// on the compute track of the thread that runs the patch loop, and so are the finish's
+// stages; compute busy covers them and compute_thread_seconds is the compute threads' CPU.
+TEST(SimplifyOoc, TheTraceAndTheBusyTimesSeeThePatchPhasesAndTheFinish) {
+  TempDir dir;
+  const auto trace_path = dir / "t.json";
+  const auto r = simplify_with_report(dir, generate(dir, "--faces 100000"),
+                                      "--ratio 0.01 --clusters 4 --in-core-faces 25000 --mem-budget 64M --trace " +
+                                          trace_path.string());
+  ASSERT_GE(r["out_of_core_epochs"].get<int>(), 2);
+  const double wall = r["wall_seconds"].get<double>();
+  const double io_only = r["io_busy_seconds"].get<double>() - r["overlap_seconds"].get<double>();
+  const double cpu = r["cpu_seconds"].get<double>();
+  EXPECT_GE(r["compute_busy_seconds"].get<double>(), 0.5 * (wall - io_only)) << r.dump();
+  EXPECT_LE(r["compute_busy_seconds"].get<double>(), wall + 1e-3);
+  EXPECT_GE(r["compute_thread_seconds"].get<double>(), 0.5 * cpu) << r.dump();
+  EXPECT_LE(r["compute_thread_seconds"].get<double>(), cpu + 0.05);
+
+  const auto trace = read_json(trace_path);
+  ASSERT_EQ(trace["otherData"]["dropped_events"].get<uint64_t>(), 0u);
+  std::map<int, std::string> tracks;
+  for (const auto& e : trace["traceEvents"])
+    if (e["name"] == "thread_name") tracks[e["tid"].get<int>()] = e["args"]["name"].get<std::string>();
+  std::map<std::string, double> seconds;  // per span name
+  std::map<std::string, std::set<std::string>> tracks_of;
+  std::set<uint32_t> patches_seen;
+  for (const auto& e : trace["traceEvents"]) {
+    if (e["ph"] != "X") continue;
+    const auto name = e["name"].get<std::string>();
+    seconds[name] += 1e-6 * e["dur"].get<double>();
+    tracks_of[name].insert(tracks[e["tid"].get<int>()]);
+    if (e["args"].contains("patch")) patches_seen.insert(e["args"]["patch"].get<uint32_t>());
+  }
+  for (const char* name : {"gather", "build", "setup", "first_round", "rounds", "summary", "extract", "export",
+                           "finish gather", "finish build", "finish setup", "finish rounds", "finish extract"}) {
+    SCOPED_TRACE(name);
+    ASSERT_EQ(tracks_of[name].size(), 1u) << "one track runs the patch loop and the finish";
+    EXPECT_EQ(tracks_of[name].begin()->rfind("compute-", 0), 0u) << *tracks_of[name].begin();
+  }
+  EXPECT_EQ(tracks_of["gather"], tracks_of["finish rounds"]);
+  EXPECT_EQ(patches_seen, (std::set<uint32_t>{0, 1, 2, 3}));
+  // The spans are the phases the report times, to the clock reads between them.
+  for (const auto& [phase, times] : r["patch_phases"].items()) {
+    SCOPED_TRACE(phase);
+    EXPECT_NEAR(seconds[phase], times["seconds"].get<double>(), 0.01 + 0.01 * times["seconds"].get<double>());
+  }
 }
 
 TEST(SimplifyOoc, AForcedFinishLargerThanTheBudgetAllowsIsCappedNotAHang) {
