@@ -60,8 +60,8 @@ Trace::Trace(size_t max_events) : max_events_(max_events), start_(Clock::now()) 
   if (max_events_) events_.reserve(max_events_);
 }
 
-double Trace::now_us() const {
-  return std::chrono::duration<double, std::micro>(Clock::now() - start_).count();
+double Trace::us_at(Clock::time_point time) const {
+  return std::chrono::duration<double, std::micro>(time - start_).count();
 }
 
 uint32_t Trace::thread_id() {

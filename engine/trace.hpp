@@ -84,7 +84,8 @@ class Trace {
   // ("compute-N" inside the job's arena): a thread whose first span would come from
   // outside the arena (the job's own thread, between phases) gets its arena name.
   void register_thread();
-  double now_us() const;
+  double now_us() const { return us_at(Clock::now()); }
+  double us_at(Clock::time_point time) const;  // µs since the trace began
   static constexpr uint32_t kNoPatch = UINT32_MAX;
   // `patch`: the patch (owner) the span worked on, an arg of the event unless kNoPatch.
   void span(const char* name, double start_us, double end_us, uint64_t bytes = 0, uint32_t patch = kNoPatch);
@@ -132,10 +133,6 @@ class Span {
   Span& operator=(const Span&) = delete;
   void set_bytes(uint64_t bytes) { bytes_ = bytes; }
   void set_patch(uint32_t patch) { patch_ = patch; }
-  // The name is read when the span ends (a phase is named once it is known).
-  void set_name(const char* name) { name_ = name; }
-  // Ends the span without a trace event (its busy time still counts).
-  void untraced() { trace_ = nullptr; }
 
   struct ThreadState {
     Activity* activity = nullptr;

@@ -671,41 +671,34 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
 // ---------------------------------------------------------------- patches
 
 // OocStats::phase_wall / phase_cpu: charge(phase) adds the time since the previous
-// charge (or the clock's start) to `phase`, and ends a compute span named for it (the
-// patch's owner as its arg) on the calling thread's track, the patch loop's: its
-// parallel_for work inside counts in Activity's compute CPU, the thread in its busy
-// time (less its waits on the I/O thread and on stream passes, whose own spans count).
+// charge (or the clock's start) to `phase`, and traces that time as a span named for it
+// (the patch's owner as its arg) on the calling thread's track, the patch loop's. A
+// compute Span (untraced: the event takes the clock's own reads, so the trace's phases
+// add up to the report's) counts the thread busy meanwhile, less its waits on the I/O
+// thread and on stream passes, whose own spans count; the phase's parallel_for work
+// counts in Activity's compute CPU.
 enum Phase : size_t { kGather, kBuild, kSetup, kFirstRound, kRounds, kSummary, kExtract, kExport };
 class PhaseClock {
  public:
-  PhaseClock(Job& job, OocStats& stats, uint32_t owner) : job_(job), stats_(stats), owner_(owner) { open(); }
-  // The time after the last charge is no phase's (a split part's return, say).
-  ~PhaseClock() { span_->untraced(); }
-  PhaseClock(const PhaseClock&) = delete;
-  PhaseClock& operator=(const PhaseClock&) = delete;
+  PhaseClock(Job& job, OocStats& stats, uint32_t owner) : job_(job), stats_(stats), owner_(owner) {}
   void charge(Phase phase) {
-    const auto wall = std::chrono::steady_clock::now();
+    const auto wall = engine::Clock::now();
     const double cpu = engine::process_cpu_seconds();
     stats_.phase_wall[phase] += std::chrono::duration<double>(wall - wall_).count();
     stats_.phase_cpu[phase] += cpu - cpu_;
+    engine::Trace& trace = job_.trace();
+    if (trace.enabled()) trace.span(OocStats::kPhaseNames[phase], trace.us_at(wall_), trace.us_at(wall), 0, owner_);
     wall_ = wall;
     cpu_ = cpu;
-    span_->set_name(OocStats::kPhaseNames[phase]);
-    span_.reset();
-    open();
   }
 
  private:
-  void open() {
-    span_.emplace(&job_.trace(), &job_.activity(), "phase");
-    span_->set_patch(owner_);
-  }
   Job& job_;
   OocStats& stats_;
   const uint32_t owner_;
-  std::chrono::steady_clock::time_point wall_ = std::chrono::steady_clock::now();
+  engine::Span busy_{nullptr, &job_.activity(), "phase"};
+  engine::Clock::time_point wall_ = engine::Clock::now();
   double cpu_ = engine::process_cpu_seconds();
-  std::optional<engine::Span> span_;
 };
 
 struct PatchPlan {
