@@ -1200,7 +1200,8 @@ class Loader {
       const uint64_t triangles = mesh_.face_count;
       mesh_.face_count = 0;
       mesh_.dropped_faces = 0;
-      // The bar goes back to the middle of the load for the second read.
+      // The second read reports the first's fractions again; the job never reports less
+      // than before (engine/job.hpp), so the bar holds where the first read ended.
       progress_base_ = 0;
       progress_span_ = 0.4;
       reopen_input_past_vertices();
