@@ -12,8 +12,6 @@
 #include <fstream>
 #include <string>
 
-#include "config/size.hpp"
-
 namespace qemflow::engine {
 
 namespace {
@@ -83,10 +81,5 @@ void advise_huge_pages(const void* begin, const void* end) {
 }
 
 uint64_t measure_baseline(uint64_t margin) { return resident_bytes() + margin; }
-
-uint64_t command_baseline() {
-  static const std::optional<uint64_t> fixed = config::env_byte_count("QEMFLOW_BASELINE", false);
-  return fixed ? *fixed : measure_baseline();
-}
 
 }  // namespace qemflow::engine

@@ -363,8 +363,10 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
   struct stat parent_stat {};
   if (!assumed_free_ && ::stat(parent.c_str(), &parent_stat) == 0) device_ = parent_stat.st_dev;
   // Checked and claimed under one lock: two stores made at once each see the other.
+  // The directory is made after it (a slow disk holds no other store's check up), and
+  // the claim goes again if that fails (the destructor does not run).
   DiskClaims& claims = disk_claims();
-  std::lock_guard claims_lock(claims.mutex);
+  std::unique_lock claims_lock(claims.mutex);
   const uint64_t others = device_ ? claimed_by_others(claims, this, *device_) : 0;
   const uint64_t free_now = free_bytes_beside(others);
   const bool known = free_now != UINT64_MAX;
@@ -381,16 +383,21 @@ ScratchStore::ScratchStore(const std::filesystem::path& parent_in, uint64_t expe
                       "; choose another --scratch DIR");
     }
   }
+  if (device_) claims.stores[this] = {*device_, expected_bytes};
+  claims_lock.unlock();
   std::random_device rd;
   for (int attempt = 0;; ++attempt) {
     dir_ = parent / ("qemflow-scratch-" + std::to_string(::getpid()) + "-" + std::to_string(rd() % 1000000));
     if (std::filesystem::create_directory(dir_, ec)) break;
     if (ec || attempt > 100) {
+      {
+        std::lock_guard erase_lock(claims.mutex);
+        claims.stores.erase(this);
+      }
       throw Error(ErrorKind::resource, parent.string() + ": cannot create a scratch directory" +
                                            (ec ? ": " + ec.message() : std::string()));
     }
   }
-  if (device_) claims.stores[this] = {*device_, expected_bytes};
 }
 
 uint64_t ScratchStore::free_bytes_beside(uint64_t others) {
