@@ -178,10 +178,10 @@ void run_simplify(const SimplifyArgs& args) {
   nodes::SimplifyOptions options = simplify_options(args);
   if (progress) {
     const uint64_t input_faces = mesh.triangles.size();
-    const uint64_t to_remove = input_faces - std::min(input_faces, nodes::target_face_count(input_faces, options));
+    const uint64_t target_faces = nodes::target_face_count(input_faces, options);
     progress(0, "simplify");
-    options.on_round = [&progress, input_faces, to_remove](uint64_t, uint64_t faces) {
-      if (to_remove) progress(0.95 * double(input_faces - std::min(input_faces, faces)) / double(to_remove), "simplify");
+    options.on_round = [&progress, input_faces, target_faces](uint64_t, uint64_t faces) {
+      progress(0.95 * nodes::removed_share(input_faces, target_faces, faces), "simplify");
     };
   }
   nodes::SimplifyResult result = nodes::simplify_in_core(std::move(mesh.vertices), std::move(mesh.triangles), options);

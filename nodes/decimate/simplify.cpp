@@ -23,6 +23,18 @@ uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options)
   throw std::invalid_argument("simplify: one of target_faces or ratio is required");
 }
 
+void copy_mesh(const PatchOutput& out, std::vector<Point>& points, std::vector<Triangle>& triangles) {
+  points.resize(out.positions.size());
+  for (size_t i = 0; i < out.positions.size(); ++i) points[i] = out.positions[i];
+  triangles.resize(out.faces.size());
+  for (size_t i = 0; i < out.faces.size(); ++i) triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
+}
+
+double removed_share(uint64_t input_faces, uint64_t target_faces, uint64_t faces) {
+  const uint64_t to_remove = input_faces - std::min(input_faces, target_faces);
+  return to_remove ? double(input_faces - std::min(input_faces, faces)) / double(to_remove) : 1.0;
+}
+
 EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
                          const EpochOptions& options,
                          const std::function<void(uint64_t, uint64_t)>& on_round) {
@@ -125,11 +137,7 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
 
   const auto t2 = std::chrono::steady_clock::now();
   PatchOutput out = decimator.extract();
-  result.points.resize(out.positions.size());
-  for (size_t i = 0; i < out.positions.size(); ++i) result.points[i] = out.positions[i];
-  result.triangles.resize(out.faces.size());
-  for (size_t i = 0; i < out.faces.size(); ++i)
-    result.triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
+  copy_mesh(out, result.points, result.triangles);
   st.output_vertices = result.points.size();
   st.output_faces = result.triangles.size();
   st.seconds_extract = seconds_since(t2);

@@ -54,8 +54,18 @@ struct SimplifyResult {
 SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangle>&& triangles,
                                 const SimplifyOptions& options);
 
+// An extracted mesh as the writer's arrays: points in global-id order, triangles in
+// face-id order (the order PatchOutput holds them in), both runs' output.
+void copy_mesh(const PatchOutput& out, std::vector<Point>& points, std::vector<Triangle>& triangles);
+
 // The target face count the options ask for.
 uint64_t target_face_count(uint64_t input_faces, const SimplifyOptions& options);
+
+// The share of the faces to remove (input down to target) that are gone once `faces`
+// are left, in [0, 1]; 1 when there is nothing to remove. A run's progress: a round or
+// an epoch removes a share of the faces it passes over, so this grows about evenly
+// with the work.
+double removed_share(uint64_t input_faces, uint64_t target_faces, uint64_t faces);
 
 struct EpochRunStats {
   uint64_t rounds = 0, epochs = 0;

@@ -1375,12 +1375,9 @@ struct Runner {
   int pass_rings = 0;
   // Faces the current pass's patches removed so far (its progress).
   uint64_t pass_removed = 0;
-  // The job's progress through the epochs and the finish: the share of the faces to
-  // remove that are gone. An epoch removes a share of the faces it passes over, so the
-  // share grows about evenly with the work.
+  // The job's progress through the epochs and the finish (nodes::removed_share).
   double removed_share(uint64_t faces) const {
-    const uint64_t to_remove = stats.input_faces - std::min(stats.input_faces, stats.target_faces);
-    return to_remove ? double(stats.input_faces - std::min(stats.input_faces, faces)) / double(to_remove) : 1.0;
+    return nodes::removed_share(stats.input_faces, stats.target_faces, faces);
   }
   std::map<int, int> redo_rings;
   int rings() const {
@@ -1905,11 +1902,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
       st.epochs += run.epochs;
       begin("finish extract");
       PatchOutput out = d.extract();
-      result.points.resize(out.positions.size());
-      for (size_t i = 0; i < out.positions.size(); ++i) result.points[i] = out.positions[i];
-      result.triangles.resize(out.faces.size());
-      for (size_t i = 0; i < out.faces.size(); ++i)
-        result.triangles[i] = {out.faces[i][0], out.faces[i][1], out.faces[i][2]};
+      copy_mesh(out, result.points, result.triangles);
     }  // the decimator's destruction in the extract's span
     stage.reset();
   });
