@@ -1375,9 +1375,18 @@ struct Runner {
   int pass_rings = 0;
   // Faces the current pass's patches removed so far (its progress).
   uint64_t pass_removed = 0;
-  // The job's progress through the epochs and the finish (nodes::removed_share).
-  double removed_share(uint64_t faces) const {
-    return nodes::removed_share(stats.input_faces, stats.target_faces, faces);
+  // The job's progress through the epochs and the finish, in the epochs' span: the
+  // first pass collapses nothing (it sums the first histograms), so the share of the
+  // faces removed cannot move the bar through it (at 200M faces, minutes); it reports
+  // the share of the state's faces its patches owned into the first kFirstPassShare,
+  // and the rest of the span follows nodes::removed_share.
+  static constexpr double kFirstPassShare = 0.05;
+  double first_pass_progress(uint64_t faces_passed, uint64_t state_faces) const {
+    return state_faces ? kFirstPassShare * double(faces_passed) / double(state_faces) : kFirstPassShare;
+  }
+  double removed_progress(uint64_t faces) const {
+    return kFirstPassShare +
+           (1 - kFirstPassShare) * nodes::removed_share(stats.input_faces, stats.target_faces, faces);
   }
   std::map<int, int> redo_rings;
   int rings() const {
@@ -1608,6 +1617,8 @@ struct Runner {
     RoundSummary total;
     pass_removed = 0;
     const std::string stage = "epoch " + std::to_string(stats.ooc_epochs + 1);
+    const bool first_pass = stats.ooc_epochs == 0 && !candidates;
+    uint64_t faces_passed = 0;
     for (uint32_t p = 0; p < patches; ++p) {
       if (owner_faces[p] == 0) continue;
       std::vector<PatchPart> todo(owner_parts[p].rbegin(), owner_parts[p].rend());
@@ -1629,7 +1640,10 @@ struct Runner {
         ++stats.patch_splits;
       }
       owner_parts[p] = std::move(ran);
-      job.progress(removed_share(state.faces - pass_removed), stage);
+      faces_passed += owner_faces[p];
+      job.progress(first_pass ? first_pass_progress(faces_passed, state.faces)
+                              : removed_progress(state.faces - pass_removed),
+                   stage);
     }
     if (next) finish_state(job, scratch, *next);
     return total;
@@ -1896,7 +1910,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
       st.in_core_carried_bests = d.restored_bests();
       begin("finish rounds");
       const EpochRunStats run = run_epochs(d, st.target_faces, epoch, [&](uint64_t, uint64_t faces) {
-        job.progress(runner.removed_share(faces), "in core");
+        job.progress(runner.removed_progress(faces), "in core");
       });
       st.rounds += run.rounds;
       st.epochs += run.epochs;

@@ -197,7 +197,8 @@ OocResult simplify_blocks(engine::Job& job, engine::ScratchStore& scratch, const
 inline constexpr uint64_t kPatchBytesPerFace = 276;
 // The job's progress (engine::Job::progress_span): the load reports into [0,
 // kLoadShare], the partition and the conversion up to kEpochsFrom, the epochs and the
-// finish (by the share of the faces to remove that are gone) up to kEpochsTo, the
+// finish (the first pass by its patches' share of the faces, then by the share of the
+// faces to remove that are gone; Runner::removed_progress) up to kEpochsTo, the
 // output's write the rest.
 inline constexpr double kLoadShare = 0.04, kEpochsFrom = 0.1, kEpochsTo = 0.99;
 inline constexpr uint64_t kInCoreBytesPerFace = 170;

@@ -170,8 +170,13 @@ TEST(SimplifyOocJobs, ProgressRisesThroughTheEpochsAndTheFinish) {
   ASSERT_GE(finish.size(), 2u) << "the in-core finish reported " << finish.size() << " times";
   EXPECT_LT(finish.front(), finish.back());
   EXPECT_GT(finish.front(), nodes::pipeline::kEpochsFrom);
-  EXPECT_TRUE(std::any_of(seen.begin(), seen.end(), [](const auto& s) { return s.second.rfind("epoch ", 0) == 0; }));
   EXPECT_GT(report["out_of_core_epochs"].get<int>(), 0);
+  // The first pass collapses nothing, yet moves the bar patch by patch (it stood still).
+  std::vector<double> first_pass;
+  for (const auto& [fraction, stage] : seen)
+    if (stage == "epoch 1") first_pass.push_back(fraction);
+  ASSERT_GE(first_pass.size(), 2u);
+  EXPECT_LT(first_pass.front(), first_pass.back()) << "the first pass held the bar at " << first_pass.front();
 }
 
 TEST(SimplifyOocJobs, AJobWritesItsOwnCodecWhateverTheProcessDefault) {
