@@ -353,12 +353,15 @@ struct InputItem {
   uint64_t max_index = 0;                                 // out of core: the largest vertex index
   bool classified = false;  // out of core: block_records hold u32 ids, cells the local bucket (or UINT32_MAX)
   // Resident re-encode: the faces were decoded straight into block_records as u32
-  // triples (triangle32 records) or PLY face records, and batch.triangles stays empty.
+  // triples (triangle32 records) or PLY face records, and batch.triangles stays empty;
+  // out of core, as (face id, triple) records (id_triangle32) the same way.
   bool records_decoded = false;
   // Resident float re-encode: the vertices were decoded straight into the vertex
   // array (InputStream::vertex_xyz), this many from batch.first_vertex; batch.vertices
   // stays empty.
   uint64_t xyz_decoded = 0;
+  // Out-of-core float load: those vertices are here instead (InputStream::vertex_floats).
+  UninitializedVector<float> xyz;
   uint32_t decoded_record_size = triangle32_record_size;  // with records_decoded: or ply_triangle_record_size
   uint64_t triangle_count() const {
     return records_decoded ? block_records.size() / decoded_record_size : batch.triangles.size();
@@ -439,6 +442,9 @@ struct InputStream {
   // (InputItem::xyz_decoded) where the file's layout allows.
   float* vertex_xyz = nullptr;
   uint64_t vertex_xyz_capacity = 0;
+  // Out of core: vertex ranges decoded into each item's own xyz (InputItem::xyz) where
+  // the file's layout allows, instead of Points narrowed back to floats.
+  bool vertex_floats = false;
   void decode(InputItem& item) {
     if (!bulk) return;
     item.xyz_decoded = 0;
@@ -446,10 +452,15 @@ struct InputStream {
         bulk->decode_float_vertices(item.raw, vertex_xyz, vertex_xyz_capacity, item.batch.first_vertex,
                                     item.xyz_decoded)) {
       item.batch.vertices.clear();
+    } else if (vertex_floats && item.raw.part == io::RawChunk::Part::vertices &&
+               bulk->decode_float_vertices(item.raw, item.xyz, item.batch.first_vertex, item.xyz_decoded)) {
+      item.batch.vertices.clear();
     } else if (decoded_records && item.raw.part == io::RawChunk::Part::faces) {
       if (spare) spare->lend(item);
       if (decoded_records == ply_triangle_record_size) {
         bulk->decode_ply_triangles(item.raw, item.block_records, item.batch.first_triangle);
+      } else if (decoded_records == id_triangle32_record_size) {
+        bulk->decode_id_triangles32(item.raw, item.block_records, item.batch.first_triangle);
       } else {
         bulk->decode_triangles32(item.raw, item.block_records, item.batch.first_triangle);
       }
@@ -1303,15 +1314,29 @@ class Loader {
     uint64_t vertex_count = 0, face_count = 0, max_index = 0;
     std::optional<StageTimer> timer(std::in_place, job_, "load");
     auto pass = input_pass();
+    // A binary PLY's float vertices come as floats and its faces as local records
+    // (u32 id and triple) straight from the decode, with no 24-byte Point or Triangle
+    // between: those batches, made and read back, were a fifth of a 256M re-encode's
+    // CPU (its load's transform, the double box, the 64-bit decode, and zeroing them).
+    input_.vertex_floats = input_.bulk && !weld_spill;
+    input_.decoded_records = input_.bulk && local_size == id_triangle32_record_size ? id_triangle32_record_size : 0;
     pass.transform = [&](InputItem& item, Lease&) {
       const auto& batch = item.batch;
-      item.box.add(batch.vertices.data(), batch.vertices.size());
+      const uint64_t vertices_in = item.xyz_decoded ? item.xyz_decoded : batch.vertices.size();
+      if (item.xyz_decoded) {
+        item.box.add_floats(item.xyz.data(), item.xyz_decoded);
+      } else {
+        item.box.add(batch.vertices.data(), batch.vertices.size());
+      }
       uint64_t done = 0;
-      while (done < batch.vertices.size()) {  // one frame per chunk the batch touches
+      while (done < vertices_in) {  // one frame per chunk the batch touches
         uint64_t first = batch.first_vertex + done;
         uint64_t c = first / chunk;
-        uint64_t n = std::min<uint64_t>(batch.vertices.size() - done, (c + 1) * chunk - first);
-        if (item.box.float_exact) {
+        uint64_t n = std::min<uint64_t>(vertices_in - done, (c + 1) * chunk - first);
+        if (item.xyz_decoded) {
+          item.vertex_frames.emplace_back(
+              c, encode_frame(first, float_vertex_record_size, item.xyz.data() + 3 * done, n, scratch_.codec()));
+        } else if (item.box.float_exact) {
           // Every coordinate of the batch is a float: the frame holds floats, half the
           // scratch bytes (load_vertex_window widens them back, exactly).
           UninitializedVector<float> xyz(3 * n);
@@ -1325,8 +1350,8 @@ class Loader {
       }
       // Faces sorted into local buckets here, on every compute thread, when local
       // records are u32 id and ids (the sink then files them a run at a time).
-      if (local_size != id_triangle32_record_size || batch.triangles.empty()) return;
-      const size_t faces = batch.triangles.size();
+      if (local_size != id_triangle32_record_size || item.triangle_count() == 0) return;
+      const size_t faces = item.triangle_count();
       // The header counts polygons, not the triangles fan-triangulated from them: the
       // bound that matters is the records' u32 face ids. A valid file past it is our
       // limit, not bad input (review12 L2): a resource error (exit 4).
@@ -1335,10 +1360,23 @@ class Loader {
                                              ": its polygons make more than 2^32 triangles, more than the "
                                              "out-of-core re-encode's 32-bit face records can number");
       }
-      item.block_records.resize(faces * id_triangle32_record_size);
       item.cells.resize(faces);
       uint64_t largest = 0;
       const LocalBuckets buckets{chunk};
+      if (item.records_decoded) {  // indices checked by the decode
+        const std::byte* records = item.block_records.data();
+        for (size_t i = 0; i < faces; ++i) {
+          uint32_t abc[3];
+          std::memcpy(abc, records + i * id_triangle32_record_size + sizeof(uint32_t), sizeof abc);
+          const uint32_t lo = std::min({abc[0], abc[1], abc[2]}), hi = std::max({abc[0], abc[1], abc[2]});
+          largest = std::max<uint64_t>(largest, hi);
+          item.cells[i] = buckets(lo, hi);
+        }
+        item.max_index = largest;
+        item.classified = true;
+        return;
+      }
+      item.block_records.resize(faces * id_triangle32_record_size);
       for (size_t i = 0; i < faces; ++i) {
         const Triangle& t = batch.triangles[i];
         const uint64_t lo = std::min({t[0], t[1], t[2]}), hi = std::max({t[0], t[1], t[2]});
@@ -1366,7 +1404,7 @@ class Loader {
         Lease frame_lease = lease.split(frame.capacity());
         vertex_writer.write(c, std::move(frame), count, first, record_size, std::move(frame_lease));
       }
-      vertex_count = std::max<uint64_t>(vertex_count, batch.first_vertex + batch.vertices.size());
+      vertex_count = std::max<uint64_t>(vertex_count, batch.first_vertex + batch.vertices.size() + item.xyz_decoded);
       if (weld_spill) {
         for (size_t i = 0; i < batch.vertices.size(); ++i) {
           WeldRecord record{batch.vertices[i], batch.first_vertex + i};
@@ -1389,7 +1427,11 @@ class Loader {
         const size_t faces = item.cells.size();
         for_each_cell_run(item.cells.data(), faces, [&](uint32_t bucket, uint64_t begin, uint64_t end) {
           if (bucket == UINT32_MAX) {
-            for (uint64_t f = begin; f < end; ++f) spanning_face(batch.first_triangle + f, batch.triangles[f]);
+            for (uint64_t f = begin; f < end; ++f) {
+              uint32_t abc[3];
+              std::memcpy(abc, item.block_records.data() + f * id_triangle32_record_size + sizeof(uint32_t), sizeof abc);
+              spanning_face(batch.first_triangle + f, Triangle{abc[0], abc[1], abc[2]});
+            }
           } else {
             local.add_run(bucket, item.block_records.data() + begin * id_triangle32_record_size, end - begin);
             mesh_.local_faces += end - begin;
@@ -1418,6 +1460,8 @@ class Loader {
       if (!batch.triangles.empty()) face_count = std::max<uint64_t>(face_count, batch.first_triangle + batch.triangles.size());
     };
     run_stream_pass(job_, pass);
+    input_.vertex_floats = false;
+    input_.decoded_records = 0;
     vertex_writer.finish();
     give_back(local.finish());
     give_back(corners.finish());

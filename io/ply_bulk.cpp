@@ -57,6 +57,25 @@ struct Triangles32 {
   }
 };
 
+// (face id, a, b, c) as u32s (16 bytes), ids counted from `first`: the out-of-core
+// re-encode's local face records, with no Triangle batch between.
+struct IdTriangles32 {
+  Bytes& v;
+  uint64_t first;
+  uint32_t* at = reinterpret_cast<uint32_t*>(v.data());  // as Triangles32's
+  size_t size() const { return v.size() / 16; }
+  void resize(size_t n) {
+    v.resize(n * 16);
+    at = reinterpret_cast<uint32_t*>(v.data());
+  }
+  void set(size_t i, uint64_t a, uint64_t b, uint64_t c) {
+    at[4 * i] = uint32_t(first + i);
+    at[4 * i + 1] = uint32_t(a);
+    at[4 * i + 2] = uint32_t(b);
+    at[4 * i + 3] = uint32_t(c);
+  }
+};
+
 // PLY face records (13 bytes), as the writer encodes them.
 // The data pointer is kept apart, as Triangles32's: its byte stores may alias anything,
 // so v.data() would be loaded again after each record.
@@ -175,6 +194,17 @@ void PlyBulkReader::decode_ply_triangles(const RawChunk& chunk, Bytes& triangles
   else decode_faces<false>(chunk, first_triangle, PlyTriangles{triangles});
 }
 
+void PlyBulkReader::decode_id_triangles32(const RawChunk& chunk, Bytes& records, uint64_t& first_triangle) {
+  if (chunk.part != RawChunk::Part::faces || vertex_count_ > UINT32_MAX) {
+    throw Error(ErrorKind::internal, "decode_id_triangles32: not a faces range of a mesh with u32 indices");
+  }
+  if (header_.format == MeshFormat::ply_binary_be) {
+    decode_faces<true>(chunk, first_triangle, IdTriangles32{records, triangles_done_});
+  } else {
+    decode_faces<false>(chunk, first_triangle, IdTriangles32{records, triangles_done_});
+  }
+}
+
 template <bool Swap>
 void PlyBulkReader::decode_vertices(const RawChunk& chunk, MeshBatch& batch) {
   const VertexLayout layout = vertex_layout(header_);
@@ -211,7 +241,21 @@ bool PlyBulkReader::decode_float_vertices(const RawChunk& chunk, float* xyz, uin
   if (chunk.part != RawChunk::Part::vertices || !vertex_layout(header_).packed_floats) return false;
   const size_t n = size_t(std::min<uint64_t>(chunk.size / 12, vertex_count_ - vertices_done_));
   if (vertices_done_ + n > capacity) return false;
-  float* out = xyz + 3 * vertices_done_;
+  put_float_vertices(chunk, n, xyz + 3 * vertices_done_, first, count);
+  return true;
+}
+
+bool PlyBulkReader::decode_float_vertices(const RawChunk& chunk, UninitializedVector<float>& xyz, uint64_t& first,
+                                          uint64_t& count) {
+  if (chunk.part != RawChunk::Part::vertices || !vertex_layout(header_).packed_floats) return false;
+  const size_t n = size_t(std::min<uint64_t>(chunk.size / 12, vertex_count_ - vertices_done_));
+  xyz.resize(3 * n);
+  put_float_vertices(chunk, n, xyz.data(), first, count);
+  return true;
+}
+
+void PlyBulkReader::put_float_vertices(const RawChunk& chunk, size_t n, float* out, uint64_t& first,
+                                       uint64_t& count) {
   const char* p = chunk.bytes.get();
   uint32_t* bits = reinterpret_cast<uint32_t*>(out);
   // All exponent bits set: infinite or NaN. One branch-free sweep (fused with the copy
@@ -244,7 +288,6 @@ bool PlyBulkReader::decode_float_vertices(const RawChunk& chunk, float* xyz, uin
   first = vertices_done_;
   count = n;
   vertices_decoded(chunk, n);
-  return true;
 }
 
 // The face record at `record` (`left` bytes available, file offset `offset`): its

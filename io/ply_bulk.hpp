@@ -88,9 +88,17 @@ class PlyBulkReader {
   // resident re-encode's vertex array). The same checks and errors as decode(). False,
   // and nothing decoded, for any other layout or a range past `capacity`.
   bool decode_float_vertices(const RawChunk& chunk, float* xyz, uint64_t capacity, uint64_t& first, uint64_t& count);
+  // The same into `xyz` alone, resized to the range's vertices (the out-of-core load's
+  // vertex frames): false, and nothing decoded, for any other layout.
+  bool decode_float_vertices(const RawChunk& chunk, UninitializedVector<float>& xyz, uint64_t& first, uint64_t& count);
+  // A faces range as (face id, a, b, c) u32 records, 16 bytes each, ids from the
+  // range's first triangle (returned in `first_triangle`): the out-of-core re-encode's
+  // local face records, with no Triangle batch between. As decode_triangles32 otherwise.
+  void decode_id_triangles32(const RawChunk& chunk, Bytes& records, uint64_t& first_triangle);
 
  private:
   template <bool Swap> void decode_vertices(const RawChunk& chunk, MeshBatch& batch);
+  void put_float_vertices(const RawChunk& chunk, size_t n, float* out, uint64_t& first, uint64_t& count);
   [[noreturn]] void non_finite(const RawChunk& chunk, size_t i, const Point& v) const;
   void vertices_decoded(const RawChunk& chunk, size_t count);
   template <bool Swap, class Out> void decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out);

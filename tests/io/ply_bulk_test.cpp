@@ -20,9 +20,11 @@ using qemflow::testing::TempDir;
 using testing::PlyBuilder;
 
 // The whole file through the bulk reader, ranges of about `max_bytes`; with `records`
-// 12, faces ranges through decode_triangles32, with 13 through decode_ply_triangles
-// (either widened back here, the PLY records checked against the writer's encode),
-// and vertex ranges through decode_float_vertices where it takes them (floats "x y z").
+// 12, faces ranges through decode_triangles32, with 13 through decode_ply_triangles,
+// with 16 through decode_id_triangles32 (each widened back here, the PLY records
+// checked against the writer's encode, the ids against the triangles' places), and
+// vertex ranges through decode_float_vertices where it takes them (floats "x y z"; to
+// each range's own vector with 16, as the out-of-core load decodes them).
 IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint32_t records_of = 0) {
   const bool triangles32 = records_of != 0;
   auto reader = open_ply_bulk_reader(path);
@@ -35,7 +37,14 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint3
   std::vector<float> xyz(3 * capacity + 1, -7.0f);  // one past: nothing lands there
   while (reader->read(chunk, max_bytes)) {
     uint64_t first = 0, count = 0;
-    if (triangles32 && reader->decode_float_vertices(chunk, xyz.data(), capacity, first, count)) {
+    UninitializedVector<float> own(7, -7.0f);  // whatever a reused buffer held is overwritten
+    if (records_of == 16 && reader->decode_float_vertices(chunk, own, first, count)) {
+      EXPECT_EQ(first, mesh.vertices.size());
+      EXPECT_EQ(own.size(), 3 * count);
+      for (uint64_t v = 0; v < count; ++v) mesh.vertices.push_back({own[3 * v], own[3 * v + 1], own[3 * v + 2]});
+      continue;
+    }
+    if (records_of != 16 && triangles32 && reader->decode_float_vertices(chunk, xyz.data(), capacity, first, count)) {
       EXPECT_EQ(first, mesh.vertices.size());
       for (uint64_t v = first; v < first + count; ++v) mesh.vertices.push_back({xyz[3 * v], xyz[3 * v + 1], xyz[3 * v + 2]});
       EXPECT_EQ(xyz.back(), -7.0f);
@@ -46,6 +55,8 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint3
       uint64_t first = 0;
       if (records_of == ply_triangle_bytes) {
         reader->decode_ply_triangles(chunk, records, first);
+      } else if (records_of == 16) {
+        reader->decode_id_triangles32(chunk, records, first);
       } else {
         reader->decode_triangles32(chunk, records, first);
       }
@@ -54,7 +65,12 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint3
       const size_t before = mesh.triangles.size();
       for (size_t at = 0; at + records_of <= records.size(); at += records_of) {
         uint32_t abc[3];
-        std::memcpy(abc, records.data() + at + (records_of == ply_triangle_bytes ? 1 : 0), sizeof abc);
+        std::memcpy(abc, records.data() + at + (records_of == ply_triangle_bytes ? 1 : records_of == 16 ? 4 : 0), sizeof abc);
+        if (records_of == 16) {
+          uint32_t id;
+          std::memcpy(&id, records.data() + at, sizeof id);
+          EXPECT_EQ(id, mesh.triangles.size());
+        }
         mesh.triangles.push_back({abc[0], abc[1], abc[2]});
       }
       if (records_of == ply_triangle_bytes) {  // the very bytes the writer makes
@@ -171,6 +187,8 @@ TEST(PlyBulk, DecodesEveryLayoutLikeTheStreamingReaderWhereverRangesEnd) {
       // (polygons fanned) and float positions.
       expect_same_mesh(bulk_read(path, max_bytes, 12), expected);
       expect_same_mesh(bulk_read(path, max_bytes, ply_triangle_bytes), expected);
+      // The out-of-core re-encode's: (id, triple) records and each range's floats.
+      expect_same_mesh(bulk_read(path, max_bytes, 16), expected);
     }
   }
 }
@@ -229,6 +247,8 @@ TEST(PlyBulk, TruncatedAnywhereFailsExactlyLikeTheStreamingReader) {
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 12), expected) << "u32, length " << length << " range " << max_bytes;
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes), expected)
             << "PLY records, length " << length << " range " << max_bytes;
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 16), expected)
+            << "id records, length " << length << " range " << max_bytes;
       }
     }
   }
@@ -279,6 +299,7 @@ TEST(PlyBulk, BadRecordsFailExactlyLikeTheStreamingReader) {
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "range " << max_bytes;
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 12), expected) << "u32, range " << max_bytes;
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes), expected) << "PLY records, range " << max_bytes;
+      EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 16), expected) << "id records, range " << max_bytes;
     }
   }
 }
