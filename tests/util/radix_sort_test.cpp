@@ -9,6 +9,9 @@
 #include <utility>
 #include <vector>
 
+#include <tbb/task_arena.h>
+
+#include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
 
 namespace {
@@ -57,3 +60,34 @@ TEST(RadixSort, SortsPlainKeys) {
 }
 
 }  // namespace
+
+// The blocked parallel path (arrays over one block, an arena of more than one thread)
+// and the serial one (an arena of one) give std::sort's order alike.
+TEST(RadixSort, ParallelBlocksGiveTheSerialOrder) {
+  for (const auto& [n, bits] : std::vector<std::pair<size_t, int>>{{200000, 20}, {300001, 63}, {100000, 4}}) {
+    const std::vector<Pair> input = pairs(n, bits, 0, n + bits);
+    std::vector<Pair> expected = input;
+    std::sort(expected.begin(), expected.end());
+    for (int threads : {1, 2, 3}) {
+      std::vector<Pair> v = input;
+      tbb::task_arena(threads).execute([&] { qemflow::radix_sort_by_key(v, first_of); });
+      EXPECT_EQ(v, expected) << n << " keys of " << bits << " bits, " << threads << " threads";
+    }
+  }
+}
+
+TEST(ParallelSelect, GivesTheSerialSelectionInOrder) {
+  const size_t n = 100000;
+  std::vector<uint64_t> expected;
+  auto keep = [](size_t i) { return (i * 2654435761u) % 7 < 3; };
+  for (size_t i = 0; i < n; ++i)
+    if (keep(i)) expected.push_back(i);
+  for (int threads : {1, 2, 3}) {
+    std::vector<uint64_t> got;
+    tbb::task_arena(threads).execute([&] {
+      qemflow::parallel_select(n, keep, [&](size_t total) { got.resize(total); },
+                               [&](size_t i, size_t rank) { got[rank] = i; });
+    });
+    EXPECT_EQ(got, expected) << threads << " threads";
+  }
+}
