@@ -2,6 +2,7 @@
 
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 #include <tbb/parallel_sort.h>
 
 #include <algorithm>
@@ -11,6 +12,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <numeric>
 #include <stdexcept>
@@ -18,6 +20,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
 
 namespace qemflow::nodes {
@@ -112,6 +115,18 @@ void parallel_over(size_t n, F&& body, size_t grain = 1024) {
                     });
 }
 
+// How many of 0..n-1 satisfy `pred`, in parallel (an integer sum: any order gives it).
+template <class P>
+size_t count_where(size_t n, P&& pred) {
+  return tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, n, 4096), size_t{0},
+      [&](const tbb::blocked_range<size_t>& r, size_t count) {
+        for (size_t i = r.begin(); i < r.end(); ++i) count += pred(i) ? 1 : 0;
+        return count;
+      },
+      std::plus<size_t>());
+}
+
 // Slot of the vertex after / before slot k in a face.
 constexpr uint32_t kNextSlot[3] = {1, 2, 0};
 constexpr uint32_t kPrevSlot[3] = {2, 0, 1};
@@ -197,41 +212,73 @@ uint64_t spread_bits21(uint64_t x) {
 // output by global ids).
 void renumber_for_locality(PatchInput& in) {
   const size_t nv = in.positions.size(), nf = in.faces.size();
-  Vec3 lo, hi;
-  lo.fill(std::numeric_limits<double>::infinity());
-  hi.fill(-std::numeric_limits<double>::infinity());
-  for (const Vec3& p : in.positions)
-    for (int k = 0; k < 3; ++k)
-      if (std::isfinite(p[k])) {
-        lo[k] = std::min(lo[k], p[k]);
-        hi[k] = std::max(hi[k], p[k]);
-      }
+  // Every loop here is parallel (the setup ran them on one core): each writes its own
+  // elements, and the box's min / max are exact whatever the order of the blocks.
+  struct Bounds {
+    Vec3 lo, hi;
+  };
+  Bounds none;
+  none.lo.fill(std::numeric_limits<double>::infinity());
+  none.hi.fill(-std::numeric_limits<double>::infinity());
+  // An equal +0.0 / -0.0 keeps the earlier one, as the serial loop did: the blocks are
+  // joined left to right.
+  auto join = [](Bounds a, const Bounds& b) {
+    for (int k = 0; k < 3; ++k) {
+      a.lo[k] = std::min(a.lo[k], b.lo[k]);
+      a.hi[k] = std::max(a.hi[k], b.hi[k]);
+    }
+    return a;
+  };
+  const Bounds box = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, nv, 4096), none,
+      [&](const tbb::blocked_range<size_t>& r, Bounds b) {
+        for (size_t v = r.begin(); v < r.end(); ++v)
+          for (int k = 0; k < 3; ++k) {
+            const double x = in.positions[v][k];
+            if (std::isfinite(x)) {
+              b.lo[k] = std::min(b.lo[k], x);
+              b.hi[k] = std::max(b.hi[k], x);
+            }
+          }
+        return b;
+      },
+      join);
+  const Vec3 lo = box.lo, hi = box.hi;
   const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
   if (nv < 2 || !(extent > 0.0) || !std::isfinite(extent)) return;
-  for (const auto& t : in.faces)
-    if (t[0] >= nv || t[1] >= nv || t[2] >= nv) return;  // not a mesh: left as given
+  const bool mesh = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, nf, 4096), true,
+      [&](const tbb::blocked_range<size_t>& r, bool ok) {
+        for (size_t f = r.begin(); f < r.end() && ok; ++f) {
+          const auto& t = in.faces[f];
+          ok = t[0] < nv && t[1] < nv && t[2] < nv;
+        }
+        return ok;
+      },
+      std::logical_and<bool>());
+  if (!mesh) return;  // not a mesh: left as given
   const double scale = double((1u << 21) - 1) / extent;
   auto lane = [&](double x, int k) -> uint64_t {
     const double q = (x - lo[k]) * scale;  // in [0, 2^21 - 1] when finite
     return std::isfinite(q) ? spread_bits21(static_cast<uint64_t>(std::clamp(q, 0.0, double((1u << 21) - 1)))) : 0;
   };
   std::vector<std::pair<uint64_t, uint32_t>> by_code(nv);
-  for (uint32_t v = 0; v < nv; ++v) {
+  parallel_over(nv, [&](size_t v) {
     const Vec3& p = in.positions[v];
-    by_code[v] = {lane(p[0], 0) | lane(p[1], 1) << 1 | lane(p[2], 2) << 2, v};
-  }
+    by_code[v] = {lane(p[0], 0) | lane(p[1], 1) << 1 | lane(p[2], 2) << 2, uint32_t(v)};
+  }, 4096);
   // Ties in code are in index order already: the stable radix sort gives std::sort's order.
   radix_sort_by_key(by_code, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
   std::vector<uint32_t> old_of(nv), new_of(nv);
-  for (uint32_t i = 0; i < nv; ++i) {
+  parallel_over(nv, [&](size_t i) {
     old_of[i] = by_code[i].second;
-    new_of[by_code[i].second] = i;
-  }
+    new_of[by_code[i].second] = uint32_t(i);
+  }, 4096);
   release_memory(by_code);
   auto permute = [](auto& values, const std::vector<uint32_t>& from) {
     if (values.empty()) return;
     std::remove_reference_t<decltype(values)> moved(from.size());
-    for (size_t i = 0; i < from.size(); ++i) moved[i] = values[from[i]];
+    parallel_over(from.size(), [&](size_t i) { moved[i] = values[from[i]]; }, 4096);
     values = std::move(moved);
   };
   permute(in.positions, old_of);
@@ -244,17 +291,17 @@ void renumber_for_locality(PatchInput& in) {
   permute(in.best_costs, old_of);
   release_memory(old_of);
   std::vector<uint64_t> by_first(nf);  // smallest new vertex id << 32 | old face index
-  for (uint32_t f = 0; f < nf; ++f) {
+  parallel_over(nf, [&](size_t f) {
     auto& t = in.faces[f];
     for (uint32_t& v : t) v = new_of[v];
     by_first[f] = uint64_t{std::min({t[0], t[1], t[2]})} << 32 | f;
-  }
+  }, 4096);
   release_memory(new_of);
   // The low half (the old index) is ascending already: sorting stably by the high half
   // alone gives the same order in 2 radix passes instead of 4-5.
   radix_sort_by_key(by_first, [](uint64_t x) { return x >> 32; });
   std::vector<uint32_t> face_from(nf);
-  for (size_t i = 0; i < nf; ++i) face_from[i] = static_cast<uint32_t>(by_first[i]);
+  parallel_over(nf, [&](size_t i) { face_from[i] = static_cast<uint32_t>(by_first[i]); }, 4096);
   release_memory(by_first);
   permute(in.faces, face_from);
   permute(in.face_gids, face_from);
@@ -325,43 +372,52 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   renumber_for_locality(in);
   pos_ = std::move(in.positions);
   vgid_ = std::move(in.vertex_gids);
-  auto nonzero = [](uint8_t x) { return x != 0; };
-  vflag_.assign(nv, kOwned);
-  for (size_t v = 0; v < in.owned_vertex.size(); ++v)
-    if (!in.owned_vertex[v]) vflag_[v] &= ~kOwned;
-  for (size_t v = 0; v < in.incomplete.size(); ++v)
-    if (in.incomplete[v]) vflag_[v] |= kUntrusted;
-  for (size_t v = 0; v < in.locked.size(); ++v)
-    if (in.locked[v]) vflag_[v] |= kLocked;
-  const bool any_incomplete = std::any_of(in.incomplete.begin(), in.incomplete.end(), nonzero);
-  if (std::all_of(in.owned_face.begin(), in.owned_face.end(), nonzero)) release_memory(in.owned_face);
+  // The per-vertex and per-face passes below run in parallel: each writes its own
+  // element, or (passthrough faces) runs serially only where there is one.
+  vflag_.resize(nv);
+  parallel_over(nv, [&](size_t v) {
+    uint8_t flags = kOwned;
+    if (!in.owned_vertex.empty() && !in.owned_vertex[v]) flags &= ~kOwned;
+    if (!in.incomplete.empty() && in.incomplete[v]) flags |= kUntrusted;
+    if (!in.locked.empty() && in.locked[v]) flags |= kLocked;
+    vflag_[v] = flags;
+  }, 4096);
+  const bool any_incomplete = count_where(in.incomplete.size(), [&](size_t v) { return in.incomplete[v] != 0; }) > 0;
+  if (count_where(in.owned_face.size(), [&](size_t f) { return in.owned_face[f] == 0; }) == 0)
+    release_memory(in.owned_face);
   release_memory(in.owned_vertex);
   release_memory(in.incomplete);
 
   // Faces with a repeated vertex have no normal or manifold structure: pass them
   // through and lock their vertices.
-  size_t kept = 0;
-  for (size_t f = 0; f < in.faces.size(); ++f) {
+  auto repeated = [&](size_t f) {
     const auto& t = in.faces[f];
-    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
-      if (params_.drop_repeated_vertex_faces) {
-        ++dropped_faces_;
-        continue;
+    return t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
+  };
+  if (count_where(in.faces.size(), repeated) > 0) {
+    size_t kept = 0;
+    for (size_t f = 0; f < in.faces.size(); ++f) {
+      const auto& t = in.faces[f];
+      if (repeated(f)) {
+        if (params_.drop_repeated_vertex_faces) {
+          ++dropped_faces_;
+          continue;
+        }
+        passthrough_.push_back(t);
+        passthrough_gids_.push_back(in.face_gids[f]);
+        passthrough_owned_.push_back(in.owned_face.empty() ? 1 : in.owned_face[f]);
+        for (uint32_t v : t) vflag_[v] |= kLocked;
+      } else {
+        in.faces[kept] = t;
+        in.face_gids[kept] = in.face_gids[f];
+        if (!in.owned_face.empty()) in.owned_face[kept] = in.owned_face[f];
+        ++kept;
       }
-      passthrough_.push_back(t);
-      passthrough_gids_.push_back(in.face_gids[f]);
-      passthrough_owned_.push_back(in.owned_face.empty() ? 1 : in.owned_face[f]);
-      for (uint32_t v : t) vflag_[v] |= kLocked;
-    } else {
-      in.faces[kept] = t;
-      in.face_gids[kept] = in.face_gids[f];
-      if (!in.owned_face.empty()) in.owned_face[kept] = in.owned_face[f];
-      ++kept;
     }
+    in.faces.resize(kept);
+    in.face_gids.resize(kept);
+    if (!in.owned_face.empty()) in.owned_face.resize(kept);
   }
-  in.faces.resize(kept);
-  in.face_gids.resize(kept);
-  if (!in.owned_face.empty()) in.owned_face.resize(kept);
   fv_ = std::move(in.faces);
   fgid_ = std::move(in.face_gids);
   fowned_ = std::move(in.owned_face);
@@ -378,15 +434,14 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
     compute_quadrics();
     if (any_incomplete) spread_untrusted(kInitialQuadricRadius);
   }
-  for (uint8_t f : vflag_) untrusted_count_ += (f & kUntrusted) ? 1 : 0;
+  untrusted_count_ = count_where(nv, [&](size_t v) { return (vflag_[v] & kUntrusted) != 0; });
   best_.assign(nv, kNone);
   best_cost_.assign(nv, 0.0);
   face_area_.assign(nv, kUnknownCost);
   partner_.assign(nv, kNone);
   dirty_.assign(nv, 1);
   touched_.assign(nv, 1);
-  locked_count_ = 0;
-  for (uint8_t f : vflag_) locked_count_ += (f & kLocked) ? 1 : 0;
+  locked_count_ = count_where(nv, [&](size_t v) { return (vflag_[v] & kLocked) != 0; });
   if (!in.best_gids.empty()) restore_bests(in.best_gids, in.best_costs);
   release_memory(in.best_gids);
   release_memory(in.best_costs);
@@ -1278,30 +1333,43 @@ uint64_t PatchDecimator::owned_face_count() const {
 }
 
 void PatchDecimator::untrusted_distances(int radius, std::vector<uint8_t>& dist) const {
-  dist.assign(pos_.size(), static_cast<uint8_t>(radius + 1));
+  dist.resize(pos_.size());
+  parallel_over(pos_.size(), [&](size_t v) {
+    dist[v] = (vflag_[v] & (kUntrusted | kDead)) == kUntrusted ? 0 : static_cast<uint8_t>(radius + 1);
+  }, 4096);
   std::vector<uint32_t> frontier;
   for (uint32_t v = 0; v < pos_.size(); ++v)
-    if ((vflag_[v] & (kUntrusted | kDead)) == kUntrusted) {
-      dist[v] = 0;
-      frontier.push_back(v);
-    }
+    if (dist[v] == 0) frontier.push_back(v);
   spread_distances(radius, std::move(frontier), dist);
 }
 
 void PatchDecimator::spread_distances(int radius, std::vector<uint32_t> frontier, std::vector<uint8_t>& dist) const {
-  std::vector<uint32_t> next;
+  // Level by level, each level's frontier in parallel: a vertex's distance is the
+  // smallest level that reaches it, whichever thread or order does (the frontiers'
+  // order is free; each vertex is claimed once, by a compare-exchange).
+  tbb::enumerable_thread_specific<std::vector<uint32_t>> reached;
   for (uint8_t d = 1; d <= radius && !frontier.empty(); ++d) {
-    next.clear();
-    for (uint32_t v : frontier)
-      for (uint32_t c : corners_of(v)) {
-        if (!falive_[c / 3]) continue;
-        for (uint32_t u : fv_[c / 3])
-          if (dist[u] > d) {
-            dist[u] = d;
-            next.push_back(u);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, frontier.size(), 256), [&](const tbb::blocked_range<size_t>& r) {
+      std::vector<uint32_t>& next = reached.local();
+      for (size_t i = r.begin(); i < r.end(); ++i)
+        for (uint32_t c : corners_of(frontier[i])) {
+          if (!falive_[c / 3]) continue;
+          for (uint32_t u : fv_[c / 3]) {
+            std::atomic_ref<uint8_t> at(dist[u]);
+            uint8_t seen = at.load(std::memory_order_relaxed);
+            while (seen > d)
+              if (at.compare_exchange_weak(seen, d, std::memory_order_relaxed)) {
+                next.push_back(u);
+                break;
+              }
           }
-      }
-    frontier.swap(next);
+        }
+    });
+    frontier.clear();
+    for (auto& next : reached) {
+      frontier.insert(frontier.end(), next.begin(), next.end());
+      next.clear();
+    }
   }
 }
 
@@ -1414,65 +1482,79 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
 }
 
 PatchOutput PatchDecimator::extract(bool owned_only) const {
+  // Every pass in parallel (the extract ran on one core): ordered selections
+  // (parallel_select) and per-element writes give the serial loops' arrays.
   PatchOutput out;
   std::vector<std::pair<uint64_t, std::array<uint32_t, 3>>> faces;
-  faces.reserve(faces_alive_ + passthrough_.size());
-  for (size_t f = 0; f < fv_.size(); ++f)
-    if (falive_[f] && (!owned_only || fowned_.empty() || fowned_[f])) faces.push_back({fgid_[f], fv_[f]});
-  for (size_t i = 0; i < passthrough_.size(); ++i)
-    if (!owned_only || passthrough_owned_[i]) faces.push_back({passthrough_gids_[i], passthrough_[i]});
+  std::vector<uint32_t> passthrough_kept;
+  for (uint32_t i = 0; i < passthrough_.size(); ++i)
+    if (!owned_only || passthrough_owned_[i]) passthrough_kept.push_back(i);
+  const size_t live = parallel_select(
+      fv_.size(), [&](size_t f) { return falive_[f] && (!owned_only || fowned_.empty() || fowned_[f]); },
+      [&](size_t total) { faces.resize(total + passthrough_kept.size()); },
+      [&](size_t f, size_t i) { faces[i] = {fgid_[f], fv_[f]}; });
+  for (size_t i = 0; i < passthrough_kept.size(); ++i)
+    faces[live + i] = {passthrough_gids_[passthrough_kept[i]], passthrough_[passthrough_kept[i]]};
   // Face and vertex gids are unique: the radix sorts give the comparison sorts' order
   // (the vertices' one compared gids through vgid_, a cache miss per comparison).
   radix_sort_by_key(faces, [](const auto& x) { return x.first; });
   std::vector<uint8_t> used(pos_.size(), 0);
-  for (const auto& f : faces)
-    for (uint32_t v : f.second) used[v] = 1;
+  parallel_over(faces.size(), [&](size_t f) {
+    for (uint32_t v : faces[f].second) raise_flag(used[v]);
+  }, 4096);
   std::vector<std::pair<uint64_t, uint32_t>> by_gid;
-  for (uint32_t v = 0; v < pos_.size(); ++v)
-    if (used[v]) by_gid.push_back({vgid_[v], v});
+  parallel_select(
+      pos_.size(), [&](size_t v) { return used[v] != 0; }, [&](size_t total) { by_gid.resize(total); },
+      [&](size_t v, size_t i) { by_gid[i] = {vgid_[v], uint32_t(v)}; });
+  release_memory(used);
   radix_sort_by_key(by_gid, [](const auto& x) { return x.first; });
-  std::vector<uint32_t> verts(by_gid.size());
-  for (size_t i = 0; i < by_gid.size(); ++i) verts[i] = by_gid[i].second;
-  release_memory(by_gid);
+  const size_t kept = by_gid.size();
   std::vector<uint32_t> remap(pos_.size(), kNone);
-  out.positions.reserve(verts.size());
-  out.vertex_gids.reserve(verts.size());
-  out.quadrics.reserve(verts.size());
-  out.locked.reserve(verts.size());
-  out.degrees.reserve(verts.size());
-  out.trusted.reserve(verts.size());
-  for (uint32_t i = 0; i < verts.size(); ++i) {
-    const uint32_t v = verts[i];
-    remap[v] = i;
-    out.positions.push_back(pos_[v]);
-    out.vertex_gids.push_back(vgid_[v]);
-    out.quadrics.push_back(quadric_[v]);
-    out.locked.push_back((vflag_[v] & kLocked) ? 1 : 0);
+  out.positions.resize(kept);
+  out.vertex_gids.resize(kept);
+  out.quadrics.resize(kept);
+  out.locked.resize(kept);
+  out.degrees.resize(kept);
+  out.trusted.resize(kept);
+  const bool bests = bests_exact_ && (owned_only || !final_);
+  if (bests) {
+    out.best_gids.resize(kept);
+    out.best_costs.resize(kept);
+  }
+  parallel_over(kept, [&](size_t i) {
+    const uint32_t v = by_gid[i].second;
+    remap[v] = uint32_t(i);
+    out.positions[i] = pos_[v];
+    out.vertex_gids[i] = vgid_[v];
+    out.quadrics[i] = quadric_[v];
+    out.locked[i] = (vflag_[v] & kLocked) ? 1 : 0;
     uint32_t degree = 0;
     for (uint32_t c : corners_of(v)) degree += falive_[c / 3] != 0;
-    out.degrees.push_back(degree);
-    out.trusted.push_back((vflag_[v] & kUntrusted) ? 0 : 1);
-    out.untrusted_vertices += (vflag_[v] & kUntrusted) ? 1 : 0;
-    if (bests_exact_ && (owned_only || !final_)) {
+    out.degrees[i] = degree;
+    out.trusted[i] = (vflag_[v] & kUntrusted) ? 0 : 1;
+    if (bests) {
       // trust_dist_ is the last prepare's (rings to the untrusted set, capped above
       // kTrustSpread >= kBestRadius; empty: nothing untrusted).
       const bool exact = trust_dist_.empty() || trust_dist_[v] > kBestRadius;
       const uint32_t w = best_[v];
-      out.best_gids.push_back(!exact ? kBestUnknown : w == kNone ? kBestNone : vgid_[w]);
-      out.best_costs.push_back(exact && w != kNone ? best_cost_[v] : 0.0);
+      out.best_gids[i] = !exact ? kBestUnknown : w == kNone ? kBestNone : vgid_[w];
+      out.best_costs[i] = exact && w != kNone ? best_cost_[v] : 0.0;
     }
-  }
+  }, 2048);
+  out.untrusted_vertices = count_where(kept, [&](size_t i) { return out.trusted[i] == 0; });
+  release_memory(by_gid);
   // Faces with a repeated vertex count once for each distinct vertex.
   for (const auto& t : passthrough_)
     for (int k = 0; k < 3; ++k)
       if (remap[t[k]] != kNone && (k == 0 || t[k] != t[0]) && (k < 2 || t[2] != t[1]))
         ++out.degrees[remap[t[k]]];
-  out.faces.reserve(faces.size());
-  out.face_gids.reserve(faces.size());
-  for (const auto& [gid, t] : faces) {
-    out.faces.push_back({remap[t[0]], remap[t[1]], remap[t[2]]});
-    out.face_gids.push_back(gid);
-  }
+  out.faces.resize(faces.size());
+  out.face_gids.resize(faces.size());
+  parallel_over(faces.size(), [&](size_t i) {
+    const auto& [gid, t] = faces[i];
+    out.faces[i] = {remap[t[0]], remap[t[1]], remap[t[2]]};
+    out.face_gids[i] = gid;
+  }, 4096);
   return out;
 }
 
