@@ -347,7 +347,7 @@ struct PatchDecimator::Scratch {
   // fan_neighbors(): the first fan_size entries of fan_store (sized, never shrunk, so
   // filling it is plain stores rather than push_back's capacity checks).
   std::vector<FanEdge> fan_store;
-  std::vector<uint32_t> fan_prev;  // the vertex before v in each of its faces
+  std::vector<uint32_t> fan_prev;  // the vertex before v in each of its faces, then those corners
   uint32_t fan_size = 0;
   std::span<const FanEdge> fan() const { return {fan_store.data(), fan_size}; }
   std::vector<uint32_t> next, prev;  // fan_links()
@@ -992,23 +992,38 @@ void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners
   }
   FanEdge* out = s.fan_store.data();
   uint32_t* prev = s.fan_prev.data();
+  // fan_prev holds the vertex before v (first n entries) and that corner (prev -> v,
+  // next n): the twin loop below then reads no face and divides nothing.
   for (uint32_t i = 0; i < n; ++i) {
-    const uint32_t c = corners[i], slot = c % 3;
+    const uint32_t c = corners[i], slot = c % 3, base = c - slot;
     const auto& t = fv_[c / 3];
     out[i] = {t[kNextSlot[slot]], c, kNone};
     prev[i] = t[kPrevSlot[slot]];
+    prev[n + i] = base + kPrevSlot[slot];
   }
   uint32_t count = n;
   const bool border = (vflag_[v] & kBorder) != 0;
-  s.fan_index.clear();
-  for (uint32_t i = 0; i < n; ++i) {
-    const uint32_t c = corners[i], before = c - c % 3 + kPrevSlot[c % 3];  // prev -> v
-    // The neighbour after v that is prev[i].
-    const uint32_t at = find_in_fan(n, [&](uint32_t j) { return out[j].other; }, prev[i], s.fan_index);
+  auto link = [&](uint32_t i, uint32_t at) {
+    const uint32_t before = prev[n + i];  // prev -> v
     if (at != n)
       out[at].twin = before;
     else if (border)
       out[count++] = {prev[i], before, kNone};
+  };
+  if (n <= kScanFan) {
+    // find_in_fan's scan, written out: out[j].other is read straight from the store
+    // the first loop just wrote (the border entries appended at count >= n are not
+    // searched, as before).
+    for (uint32_t i = 0; i < n; ++i) {
+      const uint32_t x = prev[i];
+      uint32_t at = 0;
+      while (at < n && out[at].other != x) ++at;
+      link(i, at);
+    }
+  } else {
+    s.fan_index.clear();
+    for (uint32_t i = 0; i < n; ++i)
+      link(i, find_in_fan(n, [&](uint32_t j) { return out[j].other; }, prev[i], s.fan_index));
   }
   s.fan_size = count;
 }
