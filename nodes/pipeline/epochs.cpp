@@ -1667,7 +1667,9 @@ struct Runner {
     });
     // (code, face) pairs are unique and the faces ascending: the stable radix sort by code
     // gives std::sort's order of the pairs.
-    radix_sort_by_key(keyed, [](const std::pair<uint32_t, uint32_t>& x) { return uint64_t{x.first}; });
+    job.arena().execute([&] {  // the sort is parallel: in the arena, --threads holds
+      radix_sort_by_key(keyed, [](const std::pair<uint32_t, uint32_t>& x) { return uint64_t{x.first}; });
+    });
     std::vector<uint32_t> order(keyed.size());
     for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
     release_memory(keyed);
