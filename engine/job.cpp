@@ -132,11 +132,14 @@ void Job::check() {
 
 void Job::progress(double fraction, const std::string& stage) {
   if (!hooks_.progress) return;
-  int64_t now = Clock::now().time_since_epoch().count();
-  int64_t last = last_progress_ns_.load();
-  if (fraction < 1.0 && now - last < 50'000'000) return;
-  if (!last_progress_ns_.compare_exchange_strong(last, now)) return;
+  const int64_t now = Clock::now().time_since_epoch().count();
+  const bool due = fraction >= 1.0 || now - last_progress_ns_.load(std::memory_order_relaxed) >= 50'000'000;
   std::lock_guard lock(progress_mutex_);
+  // A new stage's first report always goes through (a stage shorter than the limit
+  // would otherwise never show, nor would its start).
+  if (!due && stage == progress_stage_) return;
+  last_progress_ns_.store(now, std::memory_order_relaxed);
+  if (stage != progress_stage_) progress_stage_ = stage;
   const double mapped = progress_from_ + (progress_to_ - progress_from_) * std::clamp(fraction, 0.0, 1.0);
   progress_reported_ = std::max(progress_reported_, mapped);
   hooks_.progress(progress_reported_, stage);

@@ -10,8 +10,10 @@
 // - Cancel: the host calls CancelToken::cancel() from any thread; the job stops as
 //   soon as every node has finished its current item, and ends with
 //   Error(cancelled); scratch and partial output are removed as on any failure.
-// - Progress: `progress(fraction, stage)` is called from pipeline threads, at most
-//   ~20 times a second; it must be cheap and thread-safe. A stage reports the
+// - Progress: `progress(fraction, stage)` is called from pipeline threads; the hook
+//   gets at most ~20 reports a second (a report within 50 ms of the last is dropped,
+//   unless it completes, fraction 1, or names a new stage); it must be cheap and
+//   thread-safe. A stage reports the
 //   fraction of its own work; the job maps it into the span its driver set
 //   (`progress_span`, default the whole run) and never reports less than before, so
 //   the host sees one rising fraction for the whole job.
@@ -172,6 +174,7 @@ class Job {
   std::atomic<int64_t> last_progress_ns_{0};
   std::mutex progress_mutex_;  // hook calls in order, each at least the one before
   double progress_from_ = 0, progress_to_ = 1, progress_reported_ = 0;
+  std::string progress_stage_;  // of the last report that went through
   std::shared_ptr<std::atomic<Job*>> alive_;  // lets a cancel after the job's end do nothing
   uint64_t cancel_callback_ = 0;              // on hooks_.cancel, forgotten at the end
 };

@@ -323,7 +323,7 @@ struct LocalBuckets {
   uint64_t magic = chunk > 1 && chunk <= UINT32_MAX ? UINT64_MAX / chunk + 1 : 0;
   uint32_t operator()(uint32_t lo, uint32_t hi) const {
     if (magic == 0) return (*this)(uint64_t(lo), uint64_t(hi));
-    const uint64_t q = uint64_t((unsigned __int128)magic * lo >> 64);
+    const uint64_t q = uint64_t(__uint128_t(magic) * lo >> 64);
     return hi < (q + 2) * chunk ? uint32_t(q) : UINT32_MAX;
   }
 };
@@ -367,13 +367,14 @@ struct InputItem {
   // triples (triangle32 records) or PLY face records, and batch.triangles stays empty;
   // out of core, as (face id, triple) records (id_triangle32) the same way.
   bool records_decoded = false;
-  // Resident float re-encode: the vertices were decoded straight into the vertex
-  // array (InputStream::vertex_xyz), this many from batch.first_vertex; batch.vertices
-  // stays empty.
+  // Float vertices decoded without batches, this many from batch.first_vertex
+  // (batch.vertices stays empty): a resident re-encode's straight into the vertex
+  // array (InputStream::vertex_xyz), an out-of-core load's into `xyz`.
   uint64_t xyz_decoded = 0;
   // Out-of-core float load: those vertices are here instead (InputStream::vertex_floats).
   UninitializedVector<float> xyz;
-  uint32_t decoded_record_size = triangle32_record_size;  // with records_decoded: or ply_triangle_record_size
+  // With records_decoded: or ply_triangle_record_size, or out of core id_triangle32_record_size.
+  uint32_t decoded_record_size = triangle32_record_size;
   uint64_t triangle_count() const {
     return records_decoded ? block_records.size() / decoded_record_size : batch.triangles.size();
   }
@@ -444,7 +445,8 @@ struct InputStream {
            (!item.batch.vertices.empty() || !item.batch.triangles.empty());
   }
   // Faces ranges decoded as block records of this size (triangle32 or PLY face
-  // records; InputItem::records_decoded), into the buffers of earlier items when
+  // records, out of core (face id, triple) id_triangle32 records;
+  // InputItem::records_decoded), into the buffers of earlier items when
   // `spare` has some. 0: decoded to batches.
   uint32_t decoded_records = 0;
   SpareItemBuffers* spare = nullptr;

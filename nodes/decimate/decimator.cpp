@@ -1524,6 +1524,11 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
   release_memory(used);
   radix_sort_by_key(by_gid, [](const auto& x) { return x.first; });
   const size_t kept = by_gid.size();
+  // The pairs (16 B a vertex) go before the output arrays are made: the finish's lease
+  // (kInCoreBytesPerExtraVertex) counts what the extract holds at its peak.
+  std::vector<uint32_t> verts(kept);
+  parallel_over(kept, [&](size_t i) { verts[i] = by_gid[i].second; }, 4096);
+  release_memory(by_gid);
   std::vector<uint32_t> remap(pos_.size(), kNone);
   out.positions.resize(kept);
   out.vertex_gids.resize(kept);
@@ -1537,7 +1542,7 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     out.best_costs.resize(kept);
   }
   parallel_over(kept, [&](size_t i) {
-    const uint32_t v = by_gid[i].second;
+    const uint32_t v = verts[i];
     remap[v] = uint32_t(i);
     out.positions[i] = pos_[v];
     out.vertex_gids[i] = vgid_[v];
@@ -1557,7 +1562,7 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     }
   }, 2048);
   out.untrusted_vertices = count_where(kept, [&](size_t i) { return out.trusted[i] == 0; });
-  release_memory(by_gid);
+  release_memory(verts);
   // Faces with a repeated vertex count once for each distinct vertex.
   for (const auto& t : passthrough_)
     for (int k = 0; k < 3; ++k)

@@ -1380,7 +1380,6 @@ struct Runner {
   // faces removed cannot move the bar through it (at 200M faces, minutes); it reports
   // the share of the state's faces its patches owned into the first kFirstPassShare,
   // and the rest of the span follows nodes::removed_share.
-  static constexpr double kFirstPassShare = 0.05;
   double first_pass_progress(uint64_t faces_passed, uint64_t state_faces) const {
     return state_faces ? kFirstPassShare * double(faces_passed) / double(state_faces) : kFirstPassShare;
   }

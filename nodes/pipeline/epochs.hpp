@@ -201,6 +201,9 @@ inline constexpr uint64_t kPatchBytesPerFace = 276;
 // faces to remove that are gone; Runner::removed_progress) up to kEpochsTo, the
 // output's write the rest.
 inline constexpr double kLoadShare = 0.04, kEpochsFrom = 0.1, kEpochsTo = 0.99;
+// The first pass's share of the epochs' span (it collapses nothing, so the share of the
+// faces removed cannot move the bar through it).
+inline constexpr double kFirstPassShare = 0.05;
 inline constexpr uint64_t kInCoreBytesPerFace = 170;
 // The finish's vertices beyond half a vertex per face (the welded meshes 170 B per face
 // was measured on) each cost this much more: an unwelded soup (3 vertices per face)

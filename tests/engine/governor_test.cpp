@@ -403,15 +403,22 @@ TEST(Governor, APeakWindowIsMeasuredOnlyForAJobAlone) {
   EXPECT_EQ(shared.jobs_started(), 3u);
 }
 
+// A one-thread job whose progress reports land in `seen` (the hook's fraction, stage).
+struct ProgressSeen {
+  Governor governor{1000, 0};
+  std::vector<std::pair<double, std::string>> seen;
+  Job job{governor,
+          JobHooks{.progress = [this](double fraction, const std::string& stage) { seen.emplace_back(fraction, stage); },
+                   .cancel = {}},
+          {.threads = 1}};
+};
+
 // A job's progress is one rising fraction for the whole run: each stage reports its own
 // share of work in [0, 1] and the driver maps it into the stage's span. The out-of-core
 // simplify's conversion used to report from 0 again after the load had reached 0.9.
 TEST(JobProgress, StagesReportIntoTheirSpansAndTheFractionNeverFalls) {
-  Governor governor(1000, 0);
-  std::vector<std::pair<double, std::string>> seen;
-  JobHooks hooks{.progress = [&](double fraction, const std::string& stage) { seen.emplace_back(fraction, stage); },
-                 .cancel = {}};
-  Job job(governor, hooks, {.threads = 1});
+  ProgressSeen recorded;
+  auto& [governor, seen, job] = recorded;
   // Reports closer than 50 ms apart are dropped (at most ~20 a second).
   auto report = [&](double fraction, const char* stage) {
     std::this_thread::sleep_for(std::chrono::milliseconds(60));
@@ -426,6 +433,20 @@ TEST(JobProgress, StagesReportIntoTheirSpansAndTheFractionNeverFalls) {
   report(0.4, "convert");  // a late report from another thread
   const std::vector<std::pair<double, std::string>> expected{
       {0.125, "load"}, {0.25, "load"}, {0.25, "convert"}, {0.625, "convert"}, {0.625, "convert"}};
+  EXPECT_EQ(seen, expected);
+}
+
+// Reports within 50 ms of the last are dropped, but not a new stage's first: a short
+// stage (an out-of-core pass over a few small patches) showed nothing of itself.
+TEST(JobProgress, ANewStagesFirstReportIsNeverDropped) {
+  ProgressSeen recorded;
+  auto& [governor, seen, job] = recorded;
+  job.progress(0.25, "a");
+  job.progress(0.5, "a");  // dropped: the same stage, within 50 ms
+  job.progress(0.5, "b");
+  job.progress(0.75, "b");  // dropped
+  job.progress(1.0, "b");   // the end always goes through
+  const std::vector<std::pair<double, std::string>> expected{{0.25, "a"}, {0.5, "b"}, {1.0, "b"}};
   EXPECT_EQ(seen, expected);
 }
 
