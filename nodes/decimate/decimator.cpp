@@ -1003,27 +1003,16 @@ void PatchDecimator::fan_neighbors(uint32_t v, std::span<const uint32_t> corners
   }
   uint32_t count = n;
   const bool border = (vflag_[v] & kBorder) != 0;
-  auto link = [&](uint32_t i, uint32_t at) {
+  s.fan_index.clear();
+  for (uint32_t i = 0; i < n; ++i) {
     const uint32_t before = prev[n + i];  // prev -> v
+    // The neighbour after v that is prev[i] (the border entries appended at count >= n
+    // are not searched).
+    const uint32_t at = find_in_fan(n, [&](uint32_t j) { return out[j].other; }, prev[i], s.fan_index);
     if (at != n)
       out[at].twin = before;
     else if (border)
       out[count++] = {prev[i], before, kNone};
-  };
-  if (n <= kScanFan) {
-    // find_in_fan's scan, written out: out[j].other is read straight from the store
-    // the first loop just wrote (the border entries appended at count >= n are not
-    // searched, as before).
-    for (uint32_t i = 0; i < n; ++i) {
-      const uint32_t x = prev[i];
-      uint32_t at = 0;
-      while (at < n && out[at].other != x) ++at;
-      link(i, at);
-    }
-  } else {
-    s.fan_index.clear();
-    for (uint32_t i = 0; i < n; ++i)
-      link(i, find_in_fan(n, [&](uint32_t j) { return out[j].other; }, prev[i], s.fan_index));
   }
   s.fan_size = count;
 }
