@@ -2,6 +2,7 @@
 #include <emmintrin.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -143,6 +144,13 @@ inline void put_u32_pair(std::byte* out, uint64_t a, uint64_t b) {
   static_assert(std::endian::native == std::endian::little);
   const uint64_t pair = uint64_t(uint32_t(a)) | uint64_t(uint32_t(b)) << 32;
   std::memcpy(out, &pair, sizeof pair);
+}
+
+// The vertex ids of an id_triangle32 record (face id, a, b, c as u32s).
+inline std::array<uint32_t, 3> id_record_vertices(const std::byte* record) {
+  std::array<uint32_t, 3> abc;
+  std::memcpy(abc.data(), record + sizeof(uint32_t), sizeof abc);
+  return abc;
 }
 
 struct Box {
@@ -1379,8 +1387,7 @@ class Loader {
       if (item.records_decoded) {  // indices checked by the decode
         const std::byte* records = item.block_records.data();
         for (size_t i = 0; i < faces; ++i) {
-          uint32_t abc[3];
-          std::memcpy(abc, records + i * id_triangle32_record_size + sizeof(uint32_t), sizeof abc);
+          const auto abc = id_record_vertices(records + i * id_triangle32_record_size);
           const uint32_t lo = std::min({abc[0], abc[1], abc[2]}), hi = std::max({abc[0], abc[1], abc[2]});
           largest = std::max<uint64_t>(largest, hi);
           item.cells[i] = buckets(lo, hi);
@@ -1441,8 +1448,7 @@ class Loader {
         for_each_cell_run(item.cells.data(), faces, [&](uint32_t bucket, uint64_t begin, uint64_t end) {
           if (bucket == UINT32_MAX) {
             for (uint64_t f = begin; f < end; ++f) {
-              uint32_t abc[3];
-              std::memcpy(abc, item.block_records.data() + f * id_triangle32_record_size + sizeof(uint32_t), sizeof abc);
+              const auto abc = id_record_vertices(item.block_records.data() + f * id_triangle32_record_size);
               spanning_face(batch.first_triangle + f, Triangle{abc[0], abc[1], abc[2]});
             }
           } else {

@@ -178,31 +178,25 @@ void PlyBulkReader::decode(const RawChunk& chunk, MeshBatch& batch) {
   }
 }
 
-void PlyBulkReader::decode_triangles32(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle) {
+template <class Out>
+void PlyBulkReader::decode_u32_faces(const char* what, const RawChunk& chunk, uint64_t& first_triangle, Out out) {
   if (chunk.part != RawChunk::Part::faces || vertex_count_ > UINT32_MAX) {
-    throw Error(ErrorKind::internal, "decode_triangles32: not a faces range of a mesh with u32 indices");
+    throw Error(ErrorKind::internal, std::string(what) + ": not a faces range of a mesh with u32 indices");
   }
-  if (header_.format == MeshFormat::ply_binary_be) decode_faces<true>(chunk, first_triangle, Triangles32{triangles});
-  else decode_faces<false>(chunk, first_triangle, Triangles32{triangles});
+  if (header_.format == MeshFormat::ply_binary_be) decode_faces<true>(chunk, first_triangle, out);
+  else decode_faces<false>(chunk, first_triangle, out);
+}
+
+void PlyBulkReader::decode_triangles32(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle) {
+  decode_u32_faces("decode_triangles32", chunk, first_triangle, Triangles32{triangles});
 }
 
 void PlyBulkReader::decode_ply_triangles(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle) {
-  if (chunk.part != RawChunk::Part::faces || vertex_count_ > UINT32_MAX) {
-    throw Error(ErrorKind::internal, "decode_ply_triangles: not a faces range of a mesh with u32 indices");
-  }
-  if (header_.format == MeshFormat::ply_binary_be) decode_faces<true>(chunk, first_triangle, PlyTriangles{triangles});
-  else decode_faces<false>(chunk, first_triangle, PlyTriangles{triangles});
+  decode_u32_faces("decode_ply_triangles", chunk, first_triangle, PlyTriangles{triangles});
 }
 
 void PlyBulkReader::decode_id_triangles32(const RawChunk& chunk, Bytes& records, uint64_t& first_triangle) {
-  if (chunk.part != RawChunk::Part::faces || vertex_count_ > UINT32_MAX) {
-    throw Error(ErrorKind::internal, "decode_id_triangles32: not a faces range of a mesh with u32 indices");
-  }
-  if (header_.format == MeshFormat::ply_binary_be) {
-    decode_faces<true>(chunk, first_triangle, IdTriangles32{records, triangles_done_});
-  } else {
-    decode_faces<false>(chunk, first_triangle, IdTriangles32{records, triangles_done_});
-  }
+  decode_u32_faces("decode_id_triangles32", chunk, first_triangle, IdTriangles32{records, triangles_done_});
 }
 
 template <bool Swap>

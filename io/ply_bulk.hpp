@@ -102,6 +102,9 @@ class PlyBulkReader {
   [[noreturn]] void non_finite(const RawChunk& chunk, size_t i, const Point& v) const;
   void vertices_decoded(const RawChunk& chunk, size_t count);
   template <bool Swap, class Out> void decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out);
+  // decode_faces into u32 records (the decode_*32 and PLY record forms): Error(internal)
+  // naming `what` unless a faces range of a mesh whose indices fit u32.
+  template <class Out> void decode_u32_faces(const char* what, const RawChunk& chunk, uint64_t& first_triangle, Out out);
   template <bool Swap, class Out> size_t face_record(const char* record, size_t left, uint64_t offset, size_t& needed,
                                                      Out& out, size_t& used_triangles);
   template <bool Swap, class Out>
