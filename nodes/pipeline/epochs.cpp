@@ -24,6 +24,7 @@
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
 #include "util/error.hpp"
+#include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
 
 namespace qemflow::nodes::pipeline {
@@ -1050,25 +1051,66 @@ Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
   return g;
 }
 
-// Appends a vertex record's fields to a PatchInput's per-vertex arrays (quadrics and
-// locks when the state has them, carried bests when they are valid). `fuzz` (nonzero
-// under QEMFLOW_FUZZ_ORDER, a salt per build): a third of the bests are given as a
-// copy without one would give them.
-void append_vertex(PatchInput& in, const VertexRecord& r, bool quadrics, bool bests, uint64_t fuzz) {
-  in.vertex_gids.push_back(r.gid);
-  in.positions.push_back(r.position);
+// Sizes a PatchInput's per-vertex arrays from the records (quadrics and locks when the
+// state has them, carried bests when they are valid) to `n` vertices, for set_vertex.
+void resize_vertices(PatchInput& in, size_t n, bool quadrics, bool bests) {
+  in.vertex_gids.resize(n);
+  in.positions.resize(n);
   if (quadrics) {
-    in.quadrics.push_back(r.quadric);
-    in.locked.push_back(r.locked);
+    in.quadrics.resize(n);
+    in.locked.resize(n);
+  }
+  if (bests) {
+    in.best_gids.resize(n);
+    in.best_costs.resize(n);
+  }
+}
+
+// Writes a vertex record's fields as vertex `i` of a PatchInput sized by resize_vertices
+// (the same flags). By index rather than appended: the patch build writes its vertices
+// from several threads. `fuzz` (nonzero under QEMFLOW_FUZZ_ORDER, a salt per build): a
+// third of the bests are given as a copy without one would give them.
+void set_vertex(PatchInput& in, size_t i, const VertexRecord& r, bool quadrics, bool bests, uint64_t fuzz) {
+  in.vertex_gids[i] = r.gid;
+  in.positions[i] = r.position;
+  if (quadrics) {
+    in.quadrics[i] = r.quadric;
+    in.locked[i] = r.locked;
   }
   if (bests) {
     const bool dropped = fuzz && mix64(r.gid ^ fuzz) % 3 == 0;
-    in.best_gids.push_back(dropped ? kBestUnknown : r.best_gid);
-    in.best_costs.push_back(dropped ? 0.0 : r.best_cost);
+    in.best_gids[i] = dropped ? kBestUnknown : r.best_gid;
+    in.best_costs[i] = dropped ? 0.0 : r.best_cost;
   }
 }
 
 uint64_t fuzz_salt() { return order_fuzz_seed() ? next_fuzz_salt() : 0; }
+
+// The patch build's per-vertex passes over a face list (fan lists, corner counts) split
+// the vertices into ranges, one per thread: each range's task goes through the whole list
+// but writes only its own vertices' entries, so every entry is written by one thread in
+// the serial loop's order (the same arrays whatever the timing, no atomics). Each task
+// reads the whole list, so below kSlicedItems the serial loop (one range) is cheaper.
+constexpr size_t kSlicedItems = size_t(1) << 17;
+constexpr size_t kMostSlices = 4;  // the list's reads grow with the ranges
+
+// The threads a parallel loop here may get: the arena's, under --threads's global limit.
+size_t build_threads() {
+  return size_t(std::max<int64_t>(
+      1, std::min<int64_t>(tbb::this_task_arena::max_concurrency(),
+                           int64_t(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)))));
+}
+
+size_t vertex_slices(size_t items) { return items < kSlicedItems ? 1 : std::min(build_threads(), kMostSlices); }
+
+// body(slice, lo, hi) for the vertex ranges [lo, hi) that split [0, nv) into `slices`,
+// one task each.
+template <class Body>
+void for_each_vertex_slice(size_t nv, size_t slices, Body&& body) {
+  for_each_block(slices, 1, [&](size_t s, size_t, size_t) {
+    body(s, uint32_t(nv * s / slices), uint32_t(nv * (s + 1) / slices));
+  });
+}
 
 // A part's halo BFS over what its gather read so far, kept across the gather's read
 // batches: each batch's faces and vertex records are indexed once (add), and the BFS
@@ -1103,6 +1145,7 @@ class PatchBfs {
     ring_.resize(g.vertices.size(), kUnreached);
     const size_t first = local_.size(), nf = g.faces.size();
     local_.resize(nf);
+    face_ring_.resize(nf, kUnreached);
     std::atomic<bool> missing = false;
     tbb::parallel_for(tbb::blocked_range<size_t>(first, nf, 4096), [&](const tbb::blocked_range<size_t>& range) {
       constexpr size_t kSlotsAhead = 16, kRecordsAhead = 8;
@@ -1119,24 +1162,19 @@ class PatchBfs {
           }
           local_[f][k] = v;
         }
+        if (g.faces[f].owner == owner_) face_ring_[f] = 0;  // the owned faces seed the BFS
       }
     });
     if (missing) throw Error(ErrorKind::internal, "state chunk lacks a vertex record");
+    // The fan lists, and the owned faces' corners as the BFS's seeds (ring 0). The order
+    // of a ring's seeds (by range here) does not change the rings the BFS ends with.
     next_.resize(3 * nf);
-    face_ring_.resize(nf, kUnreached);
-    for (size_t f = first; f < nf; ++f)
-      for (int k = 0; k < 3; ++k) {
-        const uint32_t v = local_[f][k];
-        next_[3 * f + k] = head_[v];
-        head_[v] = uint32_t(3 * f + k);
-        ++loaded_[v];
-      }
-    // The owned faces seed the BFS (ring 0: their corners).
-    for (size_t f = first; f < nf; ++f)
-      if (g.faces[f].owner == owner_) {
-        face_ring_[f] = 0;
-        for (uint32_t v : local_[f]) reach(v, 0);
-      }
+    const size_t slices = vertex_slices(nf - first);
+    std::vector<std::vector<uint32_t>> seeds(slices);
+    for_each_vertex_slice(g.vertices.size(), slices, [&](size_t s, uint32_t lo, uint32_t hi) {
+      link_corners(first, nf, lo, hi, seeds[s]);
+    });
+    for (const auto& some : seeds) pending_[0].insert(pending_[0].end(), some.begin(), some.end());
     // The vertices that blocked the last run: their fans may be whole now.
     for (uint32_t v : blocked_) pending_[ring_[v]].push_back(v);
     blocked_.clear();
@@ -1149,20 +1187,32 @@ class PatchBfs {
     for (int r = 0; r < rings_; ++r) {
       std::vector<uint32_t> level;
       level.swap(pending_[r]);
-      for (uint32_t v : level) {
-        if (ring_[v] != r) continue;  // reached at a smaller ring since
-        if (loaded_[v] < vb[v].degree) {
-          blocked_.push_back(v);
-          continue;
+      // The next ring's vertices and the blocked ones, as found by a run of the level.
+      auto visit = [&](size_t begin, size_t end, std::vector<uint32_t>& next, std::vector<uint32_t>& blocked) {
+        for (size_t i = begin; i < end; ++i) {
+          const uint32_t v = level[i];
+          if (ring_[v] != r) continue;  // reached at a smaller ring since
+          if (loaded_[v] < vb[v].degree) {
+            blocked.push_back(v);
+            continue;
+          }
+          expand(v, r, next);
         }
-        // Faces reached from ring r: their corners are within r + 1. A face reached
-        // from a smaller ring already gave its corners that.
-        for (uint32_t e = head_[v]; e != kNone; e = next_[e]) {
-          const uint32_t f = e / 3;
-          if (face_ring_[f] <= r + 1) continue;
-          face_ring_[f] = uint8_t(r + 1);
-          for (uint32_t u : local_[f]) reach(u, r + 1);
-        }
+      };
+      if (level.size() < kParallelLevel || build_threads() == 1) {
+        visit(0, level.size(), pending_[r + 1], blocked_);
+        continue;
+      }
+      // A level's vertices in parallel: they are expanded to the same rings in any order
+      // (and the blocked are sorted below), so the patch does not depend on the timing.
+      tbb::enumerable_thread_specific<std::pair<std::vector<uint32_t>, std::vector<uint32_t>>> found;
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, level.size(), 1024), [&](const tbb::blocked_range<size_t>& range) {
+        auto& [next, blocked] = found.local();
+        visit(range.begin(), range.end(), next, blocked);
+      });
+      for (const auto& [next, blocked] : found) {
+        pending_[r + 1].insert(pending_[r + 1].end(), next.begin(), next.end());
+        blocked_.insert(blocked_.end(), blocked.begin(), blocked.end());
       }
     }
     // A vertex reached at a smaller ring while blocked is listed twice.
@@ -1192,9 +1242,9 @@ class PatchBfs {
     static_assert(sizeof(Selected) == 24);
     std::vector<Selected> forder;
     const size_t nf = local_.size(), nv = loaded_.size();
-    forder.reserve(size_t(nf - std::count(face_ring_.begin(), face_ring_.end(), kUnreached)));
-    for (size_t f = 0; f < nf; ++f)
-      if (face_ring_[f] != kUnreached) forder.push_back({g.faces[f].fid, local_[f], g.faces[f].owner == owner_});
+    parallel_select(
+        nf, [&](size_t f) { return face_ring_[f] != kUnreached; }, [&](size_t total) { forder.resize(total); },
+        [&](size_t f, size_t rank) { forder[rank] = {g.faces[f].fid, local_[f], g.faces[f].owner == owner_}; });
     release_memory(face_ring_);
     release_memory(local_);
     // Keys are unique: the radix sort gives std::sort's order in a fraction of its CPU.
@@ -1202,13 +1252,15 @@ class PatchBfs {
     // Per vertex: its faces in the patch, and whether the one of smallest fid is owned.
     std::vector<uint32_t> inside(nv, 0);
     std::vector<uint8_t> first_owned(nv, 0);
-    for (const Selected& s : forder)
-      for (uint32_t v : s.corners)
-        if (inside[v]++ == 0) first_owned[v] = uint8_t(s.owned);
+    for_each_vertex_slice(nv, vertex_slices(forder.size()), [&](size_t, uint32_t lo, uint32_t hi) {
+      for (const Selected& s : forder)
+        for (uint32_t v : s.corners)
+          if (v - lo < hi - lo && inside[v]++ == 0) first_owned[v] = uint8_t(s.owned);
+    });
     std::vector<std::pair<uint64_t, uint32_t>> vorder;
-    vorder.reserve(size_t(nv - std::count(inside.begin(), inside.end(), 0u)));
-    for (size_t v = 0; v < nv; ++v)
-      if (inside[v]) vorder.push_back({vb[v].gid, uint32_t(v)});
+    parallel_select(
+        nv, [&](size_t v) { return inside[v] != 0; }, [&](size_t total) { vorder.resize(total); },
+        [&](size_t v, size_t rank) { vorder[rank] = {vb[v].gid, uint32_t(v)}; });
     radix_sort_by_key(vorder, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
     const size_t kept_v = vorder.size();
     PatchInput in;
@@ -1216,47 +1268,43 @@ class PatchBfs {
     const bool given_quadrics = nv > 0 && vb[0].has_quadric;
     const bool carried = given_quadrics && carry_bests;
     const uint64_t fuzz = fuzz_salt();
-    // Exact sizes (no growth spikes).
-    in.vertex_gids.reserve(kept_v);
-    in.positions.reserve(kept_v);
-    if (given_quadrics) {
-      in.quadrics.reserve(kept_v);
-      in.locked.reserve(kept_v);
-    }
-    in.incomplete.reserve(kept_v);
-    in.owned_vertex.reserve(kept_v);
-    if (carried) {
-      in.best_gids.reserve(kept_v);
-      in.best_costs.reserve(kept_v);
-    }
-    // vorder visits the records at random: each is prefetched some visits ahead.
-    constexpr size_t kAhead = 8;
-    for (size_t i = 0; i < vorder.size(); ++i) {
-      if (i + kAhead < vorder.size()) {
-        const std::byte* ahead = reinterpret_cast<const std::byte*>(vb + vorder[i + kAhead].second);
-        for (size_t at = 0; at < sizeof(VertexRecord); at += 64) __builtin_prefetch(ahead + at);
-        __builtin_prefetch(ahead + sizeof(VertexRecord) - 1);
+    // Exact sizes (no growth spikes); written by index from several threads.
+    resize_vertices(in, kept_v, given_quadrics, carried);
+    in.incomplete.resize(kept_v);
+    in.owned_vertex.resize(kept_v);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, kept_v, 4096), [&](const tbb::blocked_range<size_t>& range) {
+      // vorder visits the records at random: each is prefetched some visits ahead.
+      constexpr size_t kAhead = 8;
+      for (size_t i = range.begin(); i < range.end(); ++i) {
+        if (i + kAhead < range.end()) {
+          const std::byte* ahead = reinterpret_cast<const std::byte*>(vb + vorder[i + kAhead].second);
+          for (size_t at = 0; at < sizeof(VertexRecord); at += 64) __builtin_prefetch(ahead + at);
+          __builtin_prefetch(ahead + sizeof(VertexRecord) - 1);
+        }
+        const uint32_t v = vorder[i].second;
+        const VertexRecord& r = vb[v];
+        new_index[v] = uint32_t(i);
+        set_vertex(in, i, r, given_quadrics, carried, fuzz);
+        const bool incomplete = inside[v] < r.degree;
+        in.incomplete[i] = incomplete;
+        in.owned_vertex[i] = !incomplete && first_owned[v];
       }
-      const uint32_t v = vorder[i].second;
-      const VertexRecord& r = vb[v];
-      new_index[v] = uint32_t(in.vertex_gids.size());
-      append_vertex(in, r, given_quadrics, carried, fuzz);
-      const bool incomplete = inside[v] < r.degree;
-      in.incomplete.push_back(incomplete);
-      in.owned_vertex.push_back(!incomplete && first_owned[v]);
-    }
+    });
     release_memory(vorder);
     release_memory(inside);
     release_memory(first_owned);
     const size_t kept_f = forder.size();
-    in.faces.reserve(kept_f);
-    in.face_gids.reserve(kept_f);
-    in.owned_face.reserve(kept_f);
-    for (const Selected& s : forder) {
-      in.faces.push_back({new_index[s.corners[0]], new_index[s.corners[1]], new_index[s.corners[2]]});
-      in.face_gids.push_back(s.fid);
-      in.owned_face.push_back(s.owned != 0);
-    }
+    in.faces.resize(kept_f);
+    in.face_gids.resize(kept_f);
+    in.owned_face.resize(kept_f);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, kept_f, 4096), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t i = range.begin(); i < range.end(); ++i) {
+        const Selected& s = forder[i];
+        in.faces[i] = {new_index[s.corners[0]], new_index[s.corners[1]], new_index[s.corners[2]]};
+        in.face_gids[i] = s.fid;
+        in.owned_face[i] = s.owned != 0;
+      }
+    });
     release_memory(loaded_);
     release_memory(ring_);
     return in;
@@ -1265,11 +1313,48 @@ class PatchBfs {
  private:
   static constexpr uint32_t kNone = std::numeric_limits<uint32_t>::max();
   static constexpr uint8_t kUnreached = std::numeric_limits<uint8_t>::max();
-  // Vertex v is within `ring` rings: it is expanded there if that is inside the halo.
-  void reach(uint32_t v, int ring) {
-    if (ring_[v] <= ring) return;
-    ring_[v] = uint8_t(ring);
-    if (ring < rings_) pending_[ring].push_back(v);
+  // A level of the BFS at least this long is expanded in parallel.
+  static constexpr size_t kParallelLevel = size_t(1) << 12;
+
+  // Expands vertex v, reached at ring r < rings_ with its fan whole: faces reached from
+  // ring r have their corners within r + 1 (those to expand: `next`). A face reached
+  // from a smaller ring already gave its corners that. Relaxed atomic accesses: a
+  // level's vertices are expanded in parallel, and all they write is r + 1, so the
+  // rings end the same in any order; a vertex two of them reach at once is listed twice
+  // and its second expansion finds nothing left to do.
+  void expand(uint32_t v, int r, std::vector<uint32_t>& next) {
+    const auto reached = uint8_t(r + 1);
+    for (uint32_t e = head_[v]; e != kNone; e = next_[e]) {
+      const uint32_t f = e / 3;
+      std::atomic_ref<uint8_t> face_ring(face_ring_[f]);
+      if (face_ring.load(std::memory_order_relaxed) <= reached) continue;
+      face_ring.store(reached, std::memory_order_relaxed);
+      for (uint32_t u : local_[f]) {
+        std::atomic_ref<uint8_t> ring(ring_[u]);
+        if (ring.load(std::memory_order_relaxed) <= reached) continue;
+        ring.store(reached, std::memory_order_relaxed);
+        if (reached < rings_) next.push_back(u);
+      }
+    }
+  }
+
+  // Links the corners of faces [first, nf) at vertices in [lo, hi) into their fans, in
+  // face order; an owned face's corners are reached at ring 0 (those to expand: `seeds`).
+  void link_corners(size_t first, size_t nf, uint32_t lo, uint32_t hi, std::vector<uint32_t>& seeds) {
+    for (size_t f = first; f < nf; ++f) {
+      const bool owned = face_ring_[f] == 0;
+      for (int k = 0; k < 3; ++k) {
+        const uint32_t v = local_[f][k];
+        if (v - lo >= hi - lo) continue;  // another range's
+        next_[3 * f + k] = head_[v];
+        head_[v] = uint32_t(3 * f + k);
+        ++loaded_[v];
+        if (owned && ring_[v] != 0) {
+          ring_[v] = 0;
+          if (rings_ > 0) seeds.push_back(v);
+        }
+      }
+    }
   }
 
   uint32_t owner_;
@@ -1314,9 +1399,8 @@ PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   const void* released = g.vertices.data();
   for (size_t begin = 0; begin < nv; begin += kVertexBlock) {
     const size_t end = std::min(nv, begin + kVertexBlock);
-    for (size_t v = begin; v < end; ++v) {
-      append_vertex(in, g.vertices[v], given_quadrics, bests, fuzz);
-    }
+    resize_vertices(in, end, given_quadrics, bests);
+    for (size_t v = begin; v < end; ++v) set_vertex(in, v, g.vertices[v], given_quadrics, bests, fuzz);
     released = engine::release_pages(released, g.vertices.data() + end);
   }
   release_memory(g.vertices);
