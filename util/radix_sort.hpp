@@ -26,6 +26,7 @@
 #include <functional>
 #include <vector>
 
+#include "util/parallel_fill.hpp"
 #include "util/parallel_select.hpp"
 
 namespace qemflow {
@@ -40,9 +41,11 @@ constexpr size_t kBlock = size_t(1) << 15;
 
 // Sorts `v` by key_of(element) (a uint64_t), keeping the given order among equal keys:
 // so for unique keys, or for keys tied only where the elements are already in order,
-// the result is std::sort's. Holds a second array of v's size while it runs.
-template <class T, class KeyOf>
-void radix_sort_by_key(std::vector<T>& v, KeyOf key_of) {
+// the result is std::sort's. Holds a second array of v's size while it runs (of v's
+// type: an UninitializedVector's is not zeroed; its fresh pages fault in on every
+// thread, parallel_fill.hpp).
+template <class T, class A, class KeyOf>
+void radix_sort_by_key(std::vector<T, A>& v, KeyOf key_of) {
   using radix_detail::kBlock;
   using radix_detail::kBuckets;
   using radix_detail::kDigitBits;
@@ -71,7 +74,8 @@ void radix_sort_by_key(std::vector<T>& v, KeyOf key_of) {
   if (differ == 0) return;
   const int low = std::countr_zero(differ);
   const int digits = (64 - std::countl_zero(differ) - low + kDigitBits - 1) / kDigitBits;
-  std::vector<T> other(n);
+  std::vector<T, A> other;
+  parallel_resize(other, n);
   if (blocks <= 1) {
     // One block: every digit's counts in one read (they do not change as elements move).
     std::vector<std::array<uint32_t, kBuckets>> counts(static_cast<size_t>(digits));

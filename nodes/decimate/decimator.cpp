@@ -20,6 +20,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "util/parallel_fill.hpp"
 #include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
 
@@ -40,10 +41,10 @@ constexpr double kSkipEdge = std::numeric_limits<double>::infinity();
 // full cost winning. Full costs are >= +0.0 or kSkipEdge, never negative.
 bool is_lower_bound(double stored) { return std::signbit(stored) && !std::isnan(stored); }
 bool is_full_cost(double stored) { return !std::signbit(stored) && !std::isnan(stored); }
-double load_cost(const std::vector<double>& costs, uint32_t corner) {
+double load_cost(const UninitializedVector<double>& costs, uint32_t corner) {
   return std::atomic_ref<double>(const_cast<double&>(costs[corner])).load(std::memory_order_relaxed);
 }
-void store_cost(std::vector<double>& costs, uint32_t corner, double value) {
+void store_cost(UninitializedVector<double>& costs, uint32_t corner, double value) {
   std::atomic_ref<double>(costs[corner]).store(value, std::memory_order_relaxed);
 }
 // falive_: kFaceAlive, and the validity of the edge at each corner (slot k: the two
@@ -52,11 +53,11 @@ void store_cost(std::vector<double>& costs, uint32_t corner, double value) {
 constexpr uint8_t kFaceAlive = 1;
 constexpr uint8_t kEdgeValid = 1, kEdgeInvalid = 2;
 constexpr unsigned kValidityShift[3] = {1, 3, 5};
-uint8_t load_face(const std::vector<uint8_t>& falive, size_t f) {
+uint8_t load_face(const UninitializedVector<uint8_t>& falive, size_t f) {
   return std::atomic_ref<uint8_t>(const_cast<uint8_t&>(falive[f])).load(std::memory_order_relaxed);
 }
 // Forgets the validity of face f's edges (alive: concurrent forgets store the same value).
-void forget_validity(std::vector<uint8_t>& falive, size_t f) {
+void forget_validity(UninitializedVector<uint8_t>& falive, size_t f) {
   if (load_face(falive, f) > kFaceAlive)
     std::atomic_ref<uint8_t>(falive[f]).store(kFaceAlive, std::memory_order_relaxed);
 }
@@ -262,22 +263,25 @@ void renumber_for_locality(PatchInput& in) {
     const double q = (x - lo[k]) * scale;  // in [0, 2^21 - 1] when finite
     return std::isfinite(q) ? spread_bits21(static_cast<uint64_t>(std::clamp(q, 0.0, double((1u << 21) - 1)))) : 0;
   };
-  std::vector<std::pair<uint64_t, uint32_t>> by_code(nv);
+  // The scratch arrays are UninitializedVectors and the permuted ones are sized by
+  // parallel_resize: fresh pages in every patch, faulted in on every thread.
+  UninitializedVector<std::pair<uint64_t, uint32_t>> by_code(nv);
   parallel_over(nv, [&](size_t v) {
     const Vec3& p = in.positions[v];
     by_code[v] = {lane(p[0], 0) | lane(p[1], 1) << 1 | lane(p[2], 2) << 2, uint32_t(v)};
   }, 4096);
   // Ties in code are in index order already: the stable radix sort gives std::sort's order.
   radix_sort_by_key(by_code, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
-  std::vector<uint32_t> old_of(nv), new_of(nv);
+  UninitializedVector<uint32_t> old_of(nv), new_of(nv);
   parallel_over(nv, [&](size_t i) {
     old_of[i] = by_code[i].second;
     new_of[by_code[i].second] = uint32_t(i);
   }, 4096);
   release_memory(by_code);
-  auto permute = [](auto& values, const std::vector<uint32_t>& from) {
+  auto permute = [](auto& values, const UninitializedVector<uint32_t>& from) {
     if (values.empty()) return;
-    std::remove_reference_t<decltype(values)> moved(from.size());
+    std::remove_reference_t<decltype(values)> moved;
+    parallel_resize(moved, from.size());
     parallel_over(from.size(), [&](size_t i) { moved[i] = values[from[i]]; }, 4096);
     values = std::move(moved);
   };
@@ -290,7 +294,7 @@ void renumber_for_locality(PatchInput& in) {
   permute(in.best_gids, old_of);
   permute(in.best_costs, old_of);
   release_memory(old_of);
-  std::vector<uint64_t> by_first(nf);  // smallest new vertex id << 32 | old face index
+  UninitializedVector<uint64_t> by_first(nf);  // smallest new vertex id << 32 | old face index
   parallel_over(nf, [&](size_t f) {
     auto& t = in.faces[f];
     for (uint32_t& v : t) v = new_of[v];
@@ -300,7 +304,7 @@ void renumber_for_locality(PatchInput& in) {
   // The low half (the old index) is ascending already: sorting stably by the high half
   // alone gives the same order in 2 radix passes instead of 4-5.
   radix_sort_by_key(by_first, [](uint64_t x) { return x >> 32; });
-  std::vector<uint32_t> face_from(nf);
+  UninitializedVector<uint32_t> face_from(nf);
   parallel_over(nf, [&](size_t i) { face_from[i] = static_cast<uint32_t>(by_first[i]); }, 4096);
   release_memory(by_first);
   permute(in.faces, face_from);
@@ -421,9 +425,9 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
   fv_ = std::move(in.faces);
   fgid_ = std::move(in.face_gids);
   fowned_ = std::move(in.owned_face);
-  falive_.assign(fv_.size(), kFaceAlive);
+  parallel_assign(falive_, fv_.size(), kFaceAlive);
   faces_alive_ = fv_.size();
-  corner_cost_.assign(3 * fv_.size(), kUnknownCost);
+  parallel_assign(corner_cost_, 3 * fv_.size(), kUnknownCost);
 
   rebuild_adjacency(0);
   if (in.locked.empty()) lock_nonmanifold_vertices();
@@ -435,12 +439,12 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
     if (any_incomplete) spread_untrusted(kInitialQuadricRadius);
   }
   untrusted_count_ = count_where(nv, [&](size_t v) { return (vflag_[v] & kUntrusted) != 0; });
-  best_.assign(nv, kNone);
-  best_cost_.assign(nv, 0.0);
-  face_area_.assign(nv, kUnknownCost);
-  partner_.assign(nv, kNone);
-  dirty_.assign(nv, 1);
-  touched_.assign(nv, 1);
+  parallel_assign(best_, nv, kNone);
+  parallel_assign(best_cost_, nv, 0.0);
+  parallel_assign(face_area_, nv, kUnknownCost);
+  parallel_assign(partner_, nv, kNone);
+  parallel_assign(dirty_, nv, uint8_t{1});
+  parallel_assign(touched_, nv, uint8_t{1});
   locked_count_ = count_where(nv, [&](size_t v) { return (vflag_[v] & kLocked) != 0; });
   if (!in.best_gids.empty()) restore_bests(in.best_gids, in.best_costs);
   release_memory(in.best_gids);
@@ -453,7 +457,8 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
   // one too: no initially untrusted vertex within kBestRadius rings.
   std::vector<uint8_t> dist;
   if (untrusted_count_ > 0) untrusted_distances(kBestRadius, dist);
-  std::vector<uint8_t> restored(pos_.size(), 0);
+  UninitializedVector<uint8_t> restored;
+  parallel_assign(restored, pos_.size(), uint8_t{0});
   tbb::enumerable_thread_specific<Scratch> scratch;
   parallel_over_with(pos_.size(), scratch, [&](size_t vi, Scratch& s) {
     const uint32_t v = static_cast<uint32_t>(vi);
@@ -480,13 +485,13 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
   });
   // partner_ for pairs of restored vertices; the first prepare's update_partners pairs
   // the refreshed ones (it visits the dirty vertices only).
-  for (uint32_t v = 0; v < pos_.size(); ++v) {
-    if (!restored[v]) continue;
-    ++restored_bests_;
+  restored_bests_ = count_where(pos_.size(), [&](size_t v) { return restored[v] != 0; });
+  parallel_over(pos_.size(), [&](size_t v) {
+    if (!restored[v]) return;
     const uint32_t w = best_[v];
     if (w != kNone && restored[w] && best_[w] == v) partner_[v] = w;
-  }
-  if (verify_carried_enabled() && restored_bests_ > 0) verify_restored_ = std::move(restored);
+  }, 4096);
+  if (verify_carried_enabled() && restored_bests_ > 0) verify_restored_.assign(restored.begin(), restored.end());
 }
 
 std::pair<uint32_t, double> PatchDecimator::best_from_scratch(uint32_t v, Scratch& s) const {
@@ -558,13 +563,14 @@ void PatchDecimator::verify_restored_bests() {
 void PatchDecimator::rebuild_adjacency(size_t extra) {
   // Counting sort of the live corners by vertex: each list in ascending face order.
   const size_t nv = pos_.size();
-  adj_count_.assign(nv, 0);
+  parallel_assign(adj_count_, nv, 0u);
   size_t live = 0;
   for (size_t f = 0; f < fv_.size(); ++f) {
     if (!falive_[f]) continue;
     for (uint32_t v : fv_[f]) ++adj_count_[v];
     live += 3;
   }
+  if (adj_begin_.capacity() < nv) release_memory(adj_begin_);
   adj_begin_.resize(nv);
   uint32_t at = 0;  // live < 3 * fv_.size() < kNone (checked at construction)
   for (size_t v = 0; v < nv; ++v) {
@@ -579,6 +585,9 @@ void PatchDecimator::rebuild_adjacency(size_t extra) {
     throw std::length_error("PatchDecimator: corner lists exceed 32-bit offsets (patch too large)");
   adj_.reserve(std::min<uint64_t>(live + live / 4 + extra, kMaxPool));
   adj_.resize(live);
+  // The placement below is serial and scattered: its fresh pages are faulted in (and
+  // zeroed by the kernel) on every thread first.
+  parallel_fill(adj_.data(), live, 0u);
   for (size_t f = 0; f < fv_.size(); ++f) {
     if (!falive_[f]) continue;
     for (uint32_t k = 0; k < 3; ++k) {
@@ -1488,8 +1497,10 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
 PatchOutput PatchDecimator::extract(bool owned_only) const {
   // Every pass in parallel (the extract ran on one core): ordered selections
   // (parallel_select) and per-element writes give the serial loops' arrays.
+  // Its scratch arrays are UninitializedVectors and the output's are sized by
+  // parallel_resize: all are fresh pages in every patch (parallel_fill.hpp).
   PatchOutput out;
-  std::vector<std::pair<uint64_t, std::array<uint32_t, 3>>> faces;
+  UninitializedVector<std::pair<uint64_t, std::array<uint32_t, 3>>> faces;
   std::vector<uint32_t> passthrough_kept;
   for (uint32_t i = 0; i < passthrough_.size(); ++i)
     if (!owned_only || passthrough_owned_[i]) passthrough_kept.push_back(i);
@@ -1502,11 +1513,12 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
   // Face and vertex gids are unique: the radix sorts give the comparison sorts' order
   // (the vertices' one compared gids through vgid_, a cache miss per comparison).
   radix_sort_by_key(faces, [](const auto& x) { return x.first; });
-  std::vector<uint8_t> used(pos_.size(), 0);
+  UninitializedVector<uint8_t> used;
+  parallel_assign(used, pos_.size(), uint8_t{0});
   parallel_over(faces.size(), [&](size_t f) {
     for (uint32_t v : faces[f].second) raise_flag(used[v]);
   }, 4096);
-  std::vector<std::pair<uint64_t, uint32_t>> by_gid;
+  UninitializedVector<std::pair<uint64_t, uint32_t>> by_gid;
   parallel_select(
       pos_.size(), [&](size_t v) { return used[v] != 0; }, [&](size_t total) { by_gid.resize(total); },
       [&](size_t v, size_t i) { by_gid[i] = {vgid_[v], uint32_t(v)}; });
@@ -1515,21 +1527,15 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
   const size_t kept = by_gid.size();
   // The pairs (16 B a vertex) go before the output arrays are made: the finish's lease
   // (kInCoreBytesPerExtraVertex) counts what the extract holds at its peak.
-  std::vector<uint32_t> verts(kept);
+  UninitializedVector<uint32_t> verts(kept);
   parallel_over(kept, [&](size_t i) { verts[i] = by_gid[i].second; }, 4096);
   release_memory(by_gid);
-  std::vector<uint32_t> remap(pos_.size(), kNone);
-  out.positions.resize(kept);
-  out.vertex_gids.resize(kept);
-  out.quadrics.resize(kept);
-  out.locked.resize(kept);
-  out.degrees.resize(kept);
-  out.trusted.resize(kept);
+  UninitializedVector<uint32_t> remap;
+  parallel_assign(remap, pos_.size(), kNone);
+  auto size_each = [&](auto&... arrays) { (parallel_resize(arrays, kept), ...); };
+  size_each(out.positions, out.vertex_gids, out.quadrics, out.locked, out.degrees, out.trusted);
   const bool bests = bests_exact_ && (owned_only || !final_);
-  if (bests) {
-    out.best_gids.resize(kept);
-    out.best_costs.resize(kept);
-  }
+  if (bests) size_each(out.best_gids, out.best_costs);
   parallel_over(kept, [&](size_t i) {
     const uint32_t v = verts[i];
     remap[v] = uint32_t(i);
@@ -1557,8 +1563,8 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     for (int k = 0; k < 3; ++k)
       if (remap[t[k]] != kNone && (k == 0 || t[k] != t[0]) && (k < 2 || t[2] != t[1]))
         ++out.degrees[remap[t[k]]];
-  out.faces.resize(faces.size());
-  out.face_gids.resize(faces.size());
+  parallel_resize(out.faces, faces.size());
+  parallel_resize(out.face_gids, faces.size());
   parallel_over(faces.size(), [&](size_t i) {
     const auto& [gid, t] = faces[i];
     out.faces[i] = {remap[t[0]], remap[t[1]], remap[t[2]]};

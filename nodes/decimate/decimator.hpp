@@ -386,39 +386,42 @@ class PatchDecimator {
   bool frozen(uint32_t v) const { return (vflag_[v] & (kUntrusted | kOwned | kDead)) == kUntrusted; }
 
   DecimateParams params_;
+  // The arrays made here rather than taken from the PatchInput are UninitializedVectors
+  // filled in parallel (util/parallel_fill.hpp): every patch's are fresh pages, whose
+  // faults and kernel zeroing a value-initialising std::vector ran on one core.
   // vertices
   std::vector<Vec3> pos_;
   std::vector<uint64_t> vgid_;
   std::vector<Quadric> quadric_;
-  std::vector<uint8_t> vflag_;
-  std::vector<uint8_t> dirty_;       // best edge may have changed (a neighbour's faces did);
+  UninitializedVector<uint8_t> vflag_;
+  UninitializedVector<uint8_t> dirty_;       // best edge may have changed (a neighbour's faces did);
                                      // 2: stale (skipped by a round with a known cut)
   bool has_stale_ = false;           // some vertex is stale, all with edges above:
   EdgeKey stale_floor_;              // (the smallest cut that skipped one)
-  std::vector<uint8_t> touched_;     // the vertex's own faces changed: full refresh
+  UninitializedVector<uint8_t> touched_;  // the vertex's own faces changed: full refresh
   // Corner lists (corner c = 3 * face + slot), one contiguous slice of adj_ per vertex.
   // A collapse appends the kept vertex's merged list at the end of the pool; dead faces
   // stay listed until prepare_round compacts the touched vertices' lists.
-  std::vector<uint32_t> adj_begin_;  // offsets < kMaxPool (decimator.cpp)
-  std::vector<uint32_t> adj_count_;
-  std::vector<uint32_t> adj_;
-  std::vector<uint32_t> best_;       // other endpoint of best edge, or kNone
-  std::vector<double> best_cost_;   // a stale vertex: the floor of its edge costs
+  UninitializedVector<uint32_t> adj_begin_;  // offsets < kMaxPool (decimator.cpp)
+  UninitializedVector<uint32_t> adj_count_;
+  UninitializedVector<uint32_t> adj_;
+  UninitializedVector<uint32_t> best_;  // other endpoint of best edge, or kNone
+  UninitializedVector<double> best_cost_;   // a stale vertex: the floor of its edge costs
   // Area of the vertex's faces as deviation() sums it (in ascending order of the face
   // areas); NaN: unknown (reset when the vertex is touched).
-  std::vector<double> face_area_;
-  std::vector<uint32_t> partner_;    // LME partner (best_ at both ends), or kNone
+  UninitializedVector<double> face_area_;
+  UninitializedVector<uint32_t> partner_;    // LME partner (best_ at both ends), or kNone
   // faces; corner c = 3 * face + slot
   std::vector<std::array<uint32_t, 3>> fv_;
   std::vector<uint64_t> fgid_;
   // Non-zero iff the face is alive; bits 1-6: the validity (collapse_valid) of the edge
   // at each corner as last checked, kept at the edge's smaller corner and forgotten
   // when a vertex of the face is touched (see edge_valid in decimator.cpp).
-  std::vector<uint8_t> falive_;
+  UninitializedVector<uint8_t> falive_;
   // Cost of the edge (corner's vertex, next one); NaN: unknown. With a deviation charge
   // one corner of an edge holds the full cost, the other its quadric part (see
   // is_lower_bound in decimator.cpp).
-  std::vector<double> corner_cost_;
+  UninitializedVector<double> corner_cost_;
   uint64_t faces_alive_ = 0;
   // faces with a repeated vertex: passed through unchanged
   std::vector<std::array<uint32_t, 3>> passthrough_;
