@@ -24,6 +24,7 @@
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
 #include "util/error.hpp"
+#include "util/parallel_fill.hpp"
 #include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
 
@@ -1053,16 +1054,17 @@ Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
 
 // Sizes a PatchInput's per-vertex arrays from the records (quadrics and locks when the
 // state has them, carried bests when they are valid) to `n` vertices, for set_vertex.
+// Fresh arrays are faulted in on every thread (parallel_resize).
 void resize_vertices(PatchInput& in, size_t n, bool quadrics, bool bests) {
-  in.vertex_gids.resize(n);
-  in.positions.resize(n);
+  parallel_resize(in.vertex_gids, n);
+  parallel_resize(in.positions, n);
   if (quadrics) {
-    in.quadrics.resize(n);
-    in.locked.resize(n);
+    parallel_resize(in.quadrics, n);
+    parallel_resize(in.locked, n);
   }
   if (bests) {
-    in.best_gids.resize(n);
-    in.best_costs.resize(n);
+    parallel_resize(in.best_gids, n);
+    parallel_resize(in.best_costs, n);
   }
 }
 
@@ -1270,8 +1272,8 @@ class PatchBfs {
     const uint64_t fuzz = fuzz_salt();
     // Exact sizes (no growth spikes); written by index from several threads.
     resize_vertices(in, kept_v, given_quadrics, carried);
-    in.incomplete.resize(kept_v);
-    in.owned_vertex.resize(kept_v);
+    parallel_resize(in.incomplete, kept_v);
+    parallel_resize(in.owned_vertex, kept_v);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, kept_v, 4096), [&](const tbb::blocked_range<size_t>& range) {
       // vorder visits the records at random: each is prefetched some visits ahead.
       constexpr size_t kAhead = 8;
@@ -1294,9 +1296,9 @@ class PatchBfs {
     release_memory(inside);
     release_memory(first_owned);
     const size_t kept_f = forder.size();
-    in.faces.resize(kept_f);
-    in.face_gids.resize(kept_f);
-    in.owned_face.resize(kept_f);
+    parallel_resize(in.faces, kept_f);
+    parallel_resize(in.face_gids, kept_f);
+    parallel_resize(in.owned_face, kept_f);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, kept_f, 4096), [&](const tbb::blocked_range<size_t>& range) {
       for (size_t i = range.begin(); i < range.end(); ++i) {
         const Selected& s = forder[i];
