@@ -4,14 +4,25 @@
 // loop of push_backs writes, whatever the thread count. In blocks: each block's
 // selected count, a prefix sum over the blocks, then each block emits from its offset.
 #include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 #include <tbb/partitioner.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <cstddef>
 #include <vector>
 
 namespace qemflow {
+
+// The threads a parallel loop started here may get: the current arena's, under the
+// process's global limit (--threads sets a tbb::global_control). One: loops that have
+// a cheaper serial form should take it.
+inline size_t parallel_threads() {
+  const size_t arena = size_t(std::max(1, tbb::this_task_arena::max_concurrency()));
+  const size_t global = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  return std::max<size_t>(1, std::min(arena, global));
+}
 
 // body(b, begin, end) for the blocks [b * block, min(n, (b + 1) * block)), in parallel,
 // one block per task: a fixed split, so per-block results can be combined in block order.

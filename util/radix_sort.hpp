@@ -12,11 +12,9 @@
 // whatever the thread count or the blocks. Why: these sorts ran on one core while the
 // other idled, in every patch's build, setup, extract and export.
 #include <tbb/blocked_range.h>
-#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <tbb/partitioner.h>
-#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
@@ -56,8 +54,7 @@ void radix_sort_by_key(std::vector<T, A>& v, KeyOf key_of) {
   const uint64_t first = key_of(v[0]);
   // One thread (an arena of one, or --threads 1's global limit): the serial sort, which
   // reads the keys once less per digit.
-  const bool parallel = tbb::this_task_arena::max_concurrency() > 1 &&
-                        tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism) > 1;
+  const bool parallel = parallel_threads() > 1;
   const size_t blocks = parallel ? (n + kBlock - 1) / kBlock : 1;
   uint64_t differ = 0;
   if (blocks > 1) {

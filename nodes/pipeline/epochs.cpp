@@ -1096,14 +1096,7 @@ uint64_t fuzz_salt() { return order_fuzz_seed() ? next_fuzz_salt() : 0; }
 constexpr size_t kSlicedItems = size_t(1) << 17;
 constexpr size_t kMostSlices = 4;  // the list's reads grow with the ranges
 
-// The threads a parallel loop here may get: the arena's, under --threads's global limit.
-size_t build_threads() {
-  return size_t(std::max<int64_t>(
-      1, std::min<int64_t>(tbb::this_task_arena::max_concurrency(),
-                           int64_t(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)))));
-}
-
-size_t vertex_slices(size_t items) { return items < kSlicedItems ? 1 : std::min(build_threads(), kMostSlices); }
+size_t vertex_slices(size_t items) { return items < kSlicedItems ? 1 : std::min(parallel_threads(), kMostSlices); }
 
 // body(slice, lo, hi) for the vertex ranges [lo, hi) that split [0, nv) into `slices`,
 // one task each.
@@ -1201,7 +1194,7 @@ class PatchBfs {
           expand(v, r, next);
         }
       };
-      if (level.size() < kParallelLevel || build_threads() == 1) {
+      if (level.size() < kParallelLevel || parallel_threads() == 1) {
         visit(0, level.size(), pending_[r + 1], blocked_);
         continue;
       }
