@@ -36,11 +36,16 @@ void burn(double seconds) {
 // it, then computes again. The wait is neither compute busy time nor overlap.
 TEST(Activity, AWaitInsideASpanIsNotComputeBusyNorOverlap) {
   Activity activity;
-  std::atomic<bool> stop{false};
+  std::atomic<bool> stop{false}, reading{false};
   std::thread io([&] {
     Span span(nullptr, &activity, "read", Span::Kind::io);
+    reading = true;
     while (!stop) std::this_thread::sleep_for(1ms);
   });
+  // The compute side starts once the I/O span has: otherwise the thread's start-up
+  // falls inside the measured time but outside the I/O span (seen in CI: I/O busy
+  // 0.210526 s against 0.210528 s measured).
+  while (!reading) std::this_thread::yield();
   const auto start = Clock::now();
   Clock::duration waited{};
   {
