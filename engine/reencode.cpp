@@ -69,7 +69,11 @@ void submit_vertices(Job& job, io::MeshWriter& writer, const Point* points, uint
 // Writes `n` vertices given as xyz floats (valid until the I/O thread drains): to a
 // float binary PLY they are its bytes already, written with no copy; any other output
 // gets them widened, a slice at a time, each written before the next.
-void submit_float_vertices(Job& job, io::MeshWriter& writer, const float* xyz, uint64_t n) {
+// With `release`, a float PLY's slices are handed back to the kernel as they are written
+// (the floats read as zeros afterwards; the caller frees them next): the output's page
+// cache is then filled from pages the VM's host backs already (release_pages), where
+// fresh ones cost the host a fault each.
+void submit_float_vertices(Job& job, io::MeshWriter& writer, const float* xyz, uint64_t n, bool release = false) {
   const bool as_they_are = encodes_here(writer) && !*writer.ply_vertex_double();
   for (uint64_t first = 0; first < n; first += vertices_per_write) {
     const uint64_t count = std::min(vertices_per_write, n - first);
@@ -77,7 +81,10 @@ void submit_float_vertices(Job& job, io::MeshWriter& writer, const float* xyz, u
     if (as_they_are) {
       job.io().submit(
           "write vertices",
-          [&writer, slice, count] { writer.write_encoded_vertices(reinterpret_cast<const char*>(slice), count); },
+          [&writer, slice, count, release] {
+            writer.write_encoded_vertices(reinterpret_cast<const char*>(slice), count);
+            if (release) release_pages(slice, slice + 3 * count);
+          },
           job.error_handler(), count * 12);
       continue;
     }
@@ -149,7 +156,7 @@ void write_vertices(Job& job, ScratchStore& scratch, const LoadedMesh& mesh, io:
   if (mesh.vertices_delivered) return;  // written by the loader's dereference
   if (store.is_resident()) {
     if (!store.resident_xyz.empty()) {
-      submit_float_vertices(job, writer, store.resident_xyz.data(), store.count);
+      submit_float_vertices(job, writer, store.resident_xyz.data(), store.count, true);  // freed below
     } else {
       submit_vertices(job, writer, store.resident.data(), store.count);
     }
@@ -216,6 +223,10 @@ uint64_t write_resident_ply_records(Job& job, LoadedMesh& mesh, io::MeshWriter& 
           for (Bytes& page : *batch) {
             writer.write_encoded_triangles(reinterpret_cast<const char*>(page.data()),
                                            page.size() / ply_triangle_record_size, max_index);
+            // Its pages straight back to the kernel (free() would keep them in the heap),
+            // which then fills the output's page cache from them: pages the VM's host
+            // has backed already, where fresh ones cost the host a fault each.
+            release_pages(page.data(), page.data() + page.size());
             page = Bytes();
           }
         },
