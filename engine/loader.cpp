@@ -383,8 +383,15 @@ struct InputItem {
   UninitializedVector<float> xyz;
   // With records_decoded: or ply_triangle_record_size, or out of core id_triangle32_record_size.
   uint32_t decoded_record_size = triangle32_record_size;
+  // With records_decoded: the records are the input's own bytes, `raw`, checked where
+  // they lie (PLY face records from a file that holds just those), not block_records.
+  bool records_in_raw = false;
+  const std::byte* records() const {
+    return records_in_raw ? reinterpret_cast<const std::byte*>(raw.bytes.get()) : block_records.data();
+  }
   uint64_t triangle_count() const {
-    return records_decoded ? block_records.size() / decoded_record_size : batch.triangles.size();
+    if (!records_decoded) return batch.triangles.size();
+    return (records_in_raw ? raw.size : block_records.size()) / decoded_record_size;
   }
 };
 
@@ -469,6 +476,7 @@ struct InputStream {
   void decode(InputItem& item) {
     if (!bulk) return;
     item.xyz_decoded = 0;
+    item.records_in_raw = false;
     if (vertex_xyz && item.raw.part == io::RawChunk::Part::vertices &&
         bulk->decode_float_vertices(item.raw, vertex_xyz, vertex_xyz_capacity, item.batch.first_vertex,
                                     item.xyz_decoded)) {
@@ -478,7 +486,11 @@ struct InputStream {
       item.batch.vertices.clear();
     } else if (decoded_records && item.raw.part == io::RawChunk::Part::faces) {
       if (spare) spare->lend(item);
-      if (decoded_records == ply_triangle_record_size) {
+      uint64_t in_place = 0;
+      if (decoded_records == ply_triangle_record_size &&
+          bulk->check_ply_triangles(item.raw, item.batch.first_triangle, in_place)) {
+        item.records_in_raw = true;  // no copy: the bytes read are the records
+      } else if (decoded_records == ply_triangle_record_size) {
         bulk->decode_ply_triangles(item.raw, item.block_records, item.batch.first_triangle);
       } else if (decoded_records == id_triangle32_record_size) {
         bulk->decode_id_triangles32(item.raw, item.block_records, item.batch.first_triangle);
@@ -490,7 +502,7 @@ struct InputStream {
     } else {
       bulk->decode(item.raw, item.batch);
     }
-    item.raw.clear();
+    if (!item.records_in_raw) item.raw.clear();
   }
   // Vertices first, then faces, as two passes: the vertex pass ends at the first
   // triangle, which is carried over to the face pass (the bulk reader's ranges are
@@ -816,8 +828,8 @@ class Loader {
     return mesh_.grid.cell_of(barycenter(face.positions));
   }
   template <class Blocks>
-  void add_records(Blocks& blocks, const Bytes& records, const std::vector<uint32_t>& cells) {
-    add_record_runs(blocks, records.data(), cells.data(), cells.size());
+  void add_records(Blocks& blocks, const InputItem& item) {
+    add_record_runs(blocks, item.records(), item.cells.data(), item.cells.size());
   }
   // Records with their cells, filed a run of equal cells at a time; UINT32_MAX cells
   // are dropped faces. Returns how many.
@@ -1030,7 +1042,9 @@ class Loader {
     // Pass B: faces resolved and made into block records on every compute thread;
     // the sink only files them. A binary PLY's faces, re-encoded as triangle32 records,
     // are decoded straight into them (12 bytes a face instead of a 24-byte Triangle
-    // the transform then read back): only their cells are left to find.
+    // the transform then read back): only their cells are left to find. As PLY face
+    // records, a little-endian file's "list uchar int" triangles are those records
+    // already: checked where they lie in the range read, and filed from there.
     const uint32_t record = mesh_.block_record_size;
     // A record's first id: PLY face records start with their count byte.
     const uint32_t ids_at = record == ply_triangle_record_size ? 1 : 0;
@@ -1052,7 +1066,7 @@ class Loader {
       if (item.records_decoded) {  // indices checked by the decode
         const size_t faces = item.triangle_count();
         item.cells.resize(faces);
-        const std::byte* records = item.block_records.data();
+        const std::byte* records = item.records();
         if (floats) {
           // Division-free: the scalar kernel's six divisions a face were a quarter of a
           // resident re-encode's CPU, and the AVX2 kernel's gathers came out 5-10% slower.
@@ -1133,10 +1147,10 @@ class Loader {
           }
           overflowed = true;  // counted on, not stored
         } else {
-          add_records(*in_memory, item.block_records, item.cells);
+          add_records(*in_memory, item);
         }
       } else {
-        add_records(*blocks, item.block_records, item.cells);
+        add_records(*blocks, item);
       }
       mesh_.dropped_faces += item.dropped;
       if (item.triangle_count() > 0) {

@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <emmintrin.h>
+#include <smmintrin.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -195,6 +196,66 @@ void PlyBulkReader::decode_ply_triangles(const RawChunk& chunk, Bytes& triangles
   decode_u32_faces("decode_ply_triangles", chunk, first_triangle, PlyTriangles{triangles});
 }
 
+bool PlyBulkReader::fixed_triangles() const {
+  if (!header_.face_element) return false;
+  const PlyElement& element = header_.elements[*header_.face_element];
+  const PlyProperty& list = element.properties[header_.index_property];
+  return element.properties.size() == 1 && list.count_type == PlyType::uint8 &&
+         (list.type == PlyType::int32 || list.type == PlyType::uint32);
+}
+
+namespace {
+// Where fast_triangles puts nothing: the records are checked where they lie.
+struct CheckedInPlace {
+  void set(size_t, uint64_t, uint64_t, uint64_t) {}
+};
+
+// Whether each of the n (>= 1) 13-byte records at p is "3 a b c" (little-endian) with
+// every index at most `largest`: the quick yes of the common case, four instructions a
+// record where fast_triangles' loop took eighteen. One unaligned load holds a record's
+// three indices and, in its last lane's low byte, the next record's count byte; the
+// largest of those lanes (the count byte xor 3, so 0 when it is 3) is compared once at
+// the end. On a no, fast_triangles finds which record and what to report.
+__attribute__((target("sse4.1"))) bool ply_triangles_below(const char* p, size_t n, uint32_t largest) {
+  if (static_cast<uint8_t>(p[0]) != 3) return false;
+  const __m128i keep = _mm_setr_epi32(-1, -1, -1, 0xff), three = _mm_setr_epi32(0, 0, 0, 3);
+  __m128i most = _mm_setzero_si128();
+#pragma GCC unroll 4
+  for (size_t i = 0; i + 1 < n; ++i) {  // the last record's load would pass the end
+    const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p + 13 * i + 1));
+    most = _mm_max_epu32(most, _mm_xor_si128(_mm_and_si128(v, keep), three));
+  }
+  uint32_t last[3];
+  std::memcpy(last, p + 13 * (n - 1) + 1, sizeof last);
+  const __m128i limit = _mm_setr_epi32(int(largest), int(largest), int(largest), 0);
+  return _mm_movemask_epi8(_mm_cmpeq_epi32(_mm_max_epu32(most, limit), limit)) == 0xffff &&
+         std::max({last[0], last[1], last[2]}) <= largest;
+}
+}  // namespace
+
+bool PlyBulkReader::check_ply_triangles(const RawChunk& chunk, uint64_t& first_triangle, uint64_t& count) {
+  if (chunk.part != RawChunk::Part::faces || header_.format != MeshFormat::ply_binary_le || !fixed_triangles() ||
+      vertex_count_ > UINT32_MAX || !carry_.empty() || polygon_left_ > 0 || chunk.size % ply_triangle_bytes != 0) {
+    return false;
+  }
+  const uint64_t n = chunk.size / ply_triangle_bytes;
+  // The last range must end the faces exactly; anything else (bytes past the faces, a
+  // file that ends early) is decode's to report.
+  if (faces_done_ + n > face_count_ || (chunk.last && faces_done_ + n < face_count_)) return false;
+  if (n == 0) return false;
+  static const bool sse41 = __builtin_cpu_supports("sse4.1");
+  const char* p = chunk.bytes.get();
+  if (!(sse41 && vertex_count_ > 0 && ply_triangles_below(p, size_t(n), uint32_t(vertex_count_ - 1)))) {
+    CheckedInPlace none;
+    if (fast_triangles<false>(p, size_t(n), chunk.offset, none, 0) < n) return false;  // a polygon
+  }
+  first_triangle = triangles_done_;
+  count = n;
+  faces_done_ += n;
+  triangles_done_ += n;
+  return true;
+}
+
 void PlyBulkReader::decode_id_triangles32(const RawChunk& chunk, Bytes& records, uint64_t& first_triangle) {
   decode_u32_faces("decode_id_triangles32", chunk, first_triangle, IdTriangles32{records, triangles_done_});
 }
@@ -384,15 +445,37 @@ void PlyBulkReader::truncated_polygon(size_t found_after) const {
 }
 
 template <bool Swap, class Out>
+size_t PlyBulkReader::fast_triangles(const char* p, size_t limit, uint64_t offset, Out& out, size_t used) const {
+  const PlyProperty& list = header_.elements[*header_.face_element].properties[header_.index_property];
+  const bool signed_index = list.type == PlyType::int32;
+  // In a local: the records' byte stores may alias the member.
+  const uint64_t vertex_count = vertex_count_;
+  size_t i = 0;
+  for (; i < limit; ++i) {
+    const char* r = p + i * 13;
+    if (static_cast<uint8_t>(*r) != 3) break;
+    uint32_t a = load32<Swap>(r + 1), b = load32<Swap>(r + 5), c = load32<Swap>(r + 9);
+    // For signed int, negative values become huge as uint32 and fail this test too.
+    if (a >= vertex_count || b >= vertex_count || c >= vertex_count) {
+      uint32_t bad = a >= vertex_count ? a : b >= vertex_count ? b : c;
+      int64_t shown = signed_index ? int64_t{static_cast<int32_t>(bad)} : int64_t{bad};
+      throw_bad_input(name_, byte_place(offset + i * 13),
+                      "face " + std::to_string(faces_done_ + i) + " has vertex index " + std::to_string(shown) +
+                          " but the file has " + std::to_string(vertex_count_) + " vertices");
+    }
+    out.set(used + i, a, b, c);
+  }
+  return i;
+}
+
+template <bool Swap, class Out>
 void PlyBulkReader::decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out) {
   first_triangle = triangles_done_;
   out.resize(0);
   if (!header_.face_element) return;
   const PlyElement& element = header_.elements[*header_.face_element];
   const PlyProperty& list = element.properties[header_.index_property];
-  const bool fast = element.properties.size() == 1 && list.count_type == PlyType::uint8 &&
-                    (list.type == PlyType::int32 || list.type == PlyType::uint32);
-  const bool signed_index = list.type == PlyType::int32;
+  const bool fast = fixed_triangles();
   out.resize(chunk.size / 13 + 8);
   size_t used = 0;
   const char* p = chunk.bytes.get();
@@ -439,26 +522,9 @@ void PlyBulkReader::decode_faces(const RawChunk& chunk, uint64_t& first_triangle
       continue;
     }
     if (fast) {
-      // "list uchar int" triangles: a fixed stride while the count byte says 3.
       size_t limit = size_t(std::min<uint64_t>(face_count_ - faces_done_, (chunk.size - pos) / 13));
       if (out.size() < used + limit) out.resize(used + limit);
-      size_t i = 0;
-      // In a local: the records' byte stores may alias the member.
-      const uint64_t vertex_count = vertex_count_;
-      for (; i < limit; ++i) {
-        const char* r = p + pos + i * 13;
-        if (static_cast<uint8_t>(*r) != 3) break;
-        uint32_t a = load32<Swap>(r + 1), b = load32<Swap>(r + 5), c = load32<Swap>(r + 9);
-        // For signed int, negative values become huge as uint32 and fail this test too.
-        if (a >= vertex_count || b >= vertex_count || c >= vertex_count) {
-          uint32_t bad = a >= vertex_count ? a : b >= vertex_count ? b : c;
-          int64_t shown = signed_index ? int64_t{static_cast<int32_t>(bad)} : int64_t{bad};
-          throw_bad_input(name_, byte_place(chunk.offset + pos + i * 13),
-                          "face " + std::to_string(faces_done_ + i) + " has vertex index " + std::to_string(shown) +
-                              " but the file has " + std::to_string(vertex_count_) + " vertices");
-        }
-        out.set(used + i, a, b, c);
-      }
+      const size_t i = fast_triangles<Swap>(p + pos, limit, chunk.offset + pos, out, used);
       used += i;
       faces_done_ += i;
       pos += i * 13;

@@ -82,6 +82,13 @@ class PlyBulkReader {
   // The same as PLY face records, "3 a b c" (ply_triangle_bytes each, the bytes the
   // writer's encode_ply_triangles makes): what a re-encode writes out unchanged.
   void decode_ply_triangles(const RawChunk& chunk, Bytes& triangles, uint64_t& first_triangle);
+  // A faces range whose bytes already are those PLY face records (a little-endian
+  // file's "list uchar int" or "uint" triangles, every index below the vertex count):
+  // checked where they lie, with decode()'s errors, and taken as decoded, the first's
+  // id in `first_triangle` and how many in `count`. False, and nothing taken, when the
+  // range holds anything else (a polygon, a record cut by either end, bytes past the
+  // faces, big-endian indices): decode_ply_triangles then decodes it.
+  bool check_ply_triangles(const RawChunk& chunk, uint64_t& first_triangle, uint64_t& count);
   // A vertices range of a file whose vertices are just "float x, y, z": its positions
   // straight to xyz[3 * first, 3 * (first + count)), where `first` is the range's first
   // vertex and xyz has room for `capacity` vertices, with no Point batch between (the
@@ -102,6 +109,14 @@ class PlyBulkReader {
   [[noreturn]] void non_finite(const RawChunk& chunk, size_t i, const Point& v) const;
   void vertices_decoded(const RawChunk& chunk, size_t count);
   template <bool Swap, class Out> void decode_faces(const RawChunk& chunk, uint64_t& first_triangle, Out out);
+  // Whether the faces are "list uchar int" (or uint) alone: 13-byte records while
+  // their count byte says 3.
+  bool fixed_triangles() const;
+  // Up to `limit` such records from `p` (at file offset `offset`, the first being face
+  // faces_done_), each index checked, to out.set(used + i, ...) while the count byte
+  // says 3; returns how many.
+  template <bool Swap, class Out>
+  size_t fast_triangles(const char* p, size_t limit, uint64_t offset, Out& out, size_t used) const;
   // decode_faces into u32 records (the decode_*32 and PLY record forms): Error(internal)
   // naming `what` unless a faces range of a mesh whose indices fit u32.
   template <class Out> void decode_u32_faces(const char* what, const RawChunk& chunk, uint64_t& first_triangle, Out out);

@@ -22,10 +22,13 @@ using testing::PlyBuilder;
 // The whole file through the bulk reader, ranges of about `max_bytes`; with `records`
 // 12, faces ranges through decode_triangles32, with 13 through decode_ply_triangles,
 // with 16 through decode_id_triangles32 (each widened back here, the PLY records
-// checked against the writer's encode, the ids against the triangles' places), and
+// checked against the writer's encode, the ids against the triangles' places); with
+// `in_place` and 13, each faces range first through check_ply_triangles (its records
+// are then the range's own bytes), as the resident re-encode reads them; and
 // vertex ranges through decode_float_vertices where it takes them (floats "x y z"; to
 // each range's own vector with 16, as the out-of-core load decodes them).
-IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint32_t records_of = 0) {
+IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint32_t records_of = 0,
+                      bool in_place = false) {
   const bool triangles32 = records_of != 0;
   auto reader = open_ply_bulk_reader(path);
   EXPECT_TRUE(reader) << path;
@@ -52,8 +55,12 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint3
     }
     if (triangles32 && chunk.part == RawChunk::Part::faces) {
       Bytes records(5);  // whatever a reused buffer held is overwritten
-      uint64_t first = 0;
-      if (records_of == ply_triangle_bytes) {
+      uint64_t first = 0, checked = 0;
+      if (in_place && reader->check_ply_triangles(chunk, first, checked)) {
+        EXPECT_EQ(chunk.size, checked * ply_triangle_bytes);
+        const auto* bytes = reinterpret_cast<const std::byte*>(chunk.bytes.get());
+        records.assign(bytes, bytes + chunk.size);
+      } else if (records_of == ply_triangle_bytes) {
         reader->decode_ply_triangles(chunk, records, first);
       } else if (records_of == 16) {
         reader->decode_id_triangles32(chunk, records, first);
@@ -91,9 +98,10 @@ IndexedMesh bulk_read(const std::filesystem::path& path, size_t max_bytes, uint3
   return mesh;
 }
 
-std::string bulk_bad_input_message(const std::filesystem::path& path, size_t max_bytes, uint32_t records_of = 0) {
+std::string bulk_bad_input_message(const std::filesystem::path& path, size_t max_bytes, uint32_t records_of = 0,
+                                   bool in_place = false) {
   try {
-    bulk_read(path, max_bytes, records_of);
+    bulk_read(path, max_bytes, records_of, in_place);
   } catch (const Error& error) {
     EXPECT_EQ(error.kind(), ErrorKind::bad_input) << error.what();
     return error.what();
@@ -187,6 +195,7 @@ TEST(PlyBulk, DecodesEveryLayoutLikeTheStreamingReaderWhereverRangesEnd) {
       // (polygons fanned) and float positions.
       expect_same_mesh(bulk_read(path, max_bytes, 12), expected);
       expect_same_mesh(bulk_read(path, max_bytes, ply_triangle_bytes), expected);
+      expect_same_mesh(bulk_read(path, max_bytes, ply_triangle_bytes, true), expected);
       // The out-of-core re-encode's: (id, triple) records and each range's floats.
       expect_same_mesh(bulk_read(path, max_bytes, 16), expected);
     }
@@ -247,6 +256,8 @@ TEST(PlyBulk, TruncatedAnywhereFailsExactlyLikeTheStreamingReader) {
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 12), expected) << "u32, length " << length << " range " << max_bytes;
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes), expected)
             << "PLY records, length " << length << " range " << max_bytes;
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes, true), expected)
+            << "PLY records in place, length " << length << " range " << max_bytes;
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 16), expected)
             << "id records, length " << length << " range " << max_bytes;
       }
@@ -268,6 +279,11 @@ TEST(PlyBulk, BadRecordsFailExactlyLikeTheStreamingReader) {
   std::vector<Case> cases;
   for (const Layout& layout : layouts()) {
     cases.push_back({layout, 33, 3, 40, false});
+    // The first and the last record: the in-place check's vector loop leaves both out.
+    cases.push_back({layout, 0, 3, 40, false});
+    cases.push_back({layout, 59, 3, 41, false});
+    cases.push_back({layout, 0, 2, 0, false});
+    cases.push_back({layout, 59, 2, 0, false});
     cases.push_back({layout, 34, 3, -1, false});
     cases.push_back({layout, 35, 2, 0, false});
     cases.push_back({layout, 36, 0, 0, false});
@@ -299,6 +315,8 @@ TEST(PlyBulk, BadRecordsFailExactlyLikeTheStreamingReader) {
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "range " << max_bytes;
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 12), expected) << "u32, range " << max_bytes;
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes), expected) << "PLY records, range " << max_bytes;
+      EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes, true), expected)
+          << "PLY records in place, range " << max_bytes;
       EXPECT_EQ(bulk_bad_input_message(path, max_bytes, 16), expected) << "id records, range " << max_bytes;
     }
   }
@@ -323,6 +341,8 @@ TEST(PlyBulk, DataAfterTheLastFaceFailsExactlyLikeTheStreamingReader) {
       ASSERT_NE(expected.find("data after the last element"), std::string::npos) << expected;
       for (size_t max_bytes : {3, 13, 1 << 20}) {
         EXPECT_EQ(bulk_bad_input_message(path, max_bytes), expected) << "range " << max_bytes;
+        EXPECT_EQ(bulk_bad_input_message(path, max_bytes, ply_triangle_bytes, true), expected)
+            << "PLY records in place, range " << max_bytes;
       }
     }
     auto path = dir / "w.ply";
