@@ -26,32 +26,30 @@ constexpr uint64_t prefetch_ahead = 16;
   return id;
 }
 
-[[gnu::always_inline]] inline void prefetch_face(const float* xyz, uint64_t first, uint64_t vertices,
-                                                 const std::byte* ids) {
+// Unchecked: the faces prefetched are ones the kernel reads anyway, whose ids lie in the
+// window by contract (checking them again was a third of the steps kernel's
+// instructions a face).
+[[gnu::always_inline]] inline void prefetch_face(const float* xyz, uint64_t first, const std::byte* ids) {
   // Three scalars, not an array: an array went through the stack every face.
 #pragma GCC unroll 3
-  for (int k = 0; k < 3; ++k) {
-    const uint64_t at = uint64_t(id_at(ids + 4 * k)) - first;  // wraps past the end when below
-    if (at < vertices) __builtin_prefetch(xyz + 3 * at);
-  }
+  for (int k = 0; k < 3; ++k) __builtin_prefetch(xyz + 3 * (id_at(ids + 4 * k) - first));
 }
 
 // cells[i] = cell(a, b, c) of face i's corner positions, prefetched ahead.
 template <class Cell>
-[[gnu::always_inline]] inline void for_each_face(const float* xyz, uint64_t first, uint64_t vertices,
-                                                 const std::byte* ids, uint32_t stride, uint64_t n, uint32_t* cells,
-                                                 Cell cell) {
+[[gnu::always_inline]] inline void for_each_face(const float* xyz, uint64_t first, const std::byte* ids,
+                                                 uint32_t stride, uint64_t n, uint32_t* cells, Cell cell) {
   for (uint64_t i = 0; i < n; ++i) {
-    if (i + prefetch_ahead < n) prefetch_face(xyz, first, vertices, ids + (i + prefetch_ahead) * stride);
+    if (i + prefetch_ahead < n) prefetch_face(xyz, first, ids + (i + prefetch_ahead) * stride);
     uint32_t v[3];
     std::memcpy(v, ids + i * stride, sizeof v);
     cells[i] = cell(xyz + 3 * (v[0] - first), xyz + 3 * (v[1] - first), xyz + 3 * (v[2] - first));
   }
 }
 
-void cells_scalar(const BlockGrid& grid, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
+void cells_scalar(const BlockGrid& grid, const float* xyz, uint64_t first, const std::byte* ids,
                   uint32_t stride, uint64_t n, uint32_t* cells) {
-  for_each_face(xyz, first, vertices, ids, stride, n, cells, [&grid](const float* a, const float* b, const float* c) {
+  for_each_face(xyz, first, ids, stride, n, cells, [&grid](const float* a, const float* b, const float* c) {
     Point bary;
     for (int k = 0; k < 3; ++k) bary[k] = (double(a[k]) + double(b[k]) + double(c[k])) / 3;
     return grid.cell_of(bary);
@@ -62,8 +60,7 @@ void cells_scalar(const BlockGrid& grid, const float* xyz, uint64_t first, uint6
 // summed in the scalar order, / 3, - min, / extent (or 0 where extent > 0 fails),
 // * dims, then cell_of's floor and clamp as masks.
 __attribute__((target("avx2"))) void cells_avx2(const BlockGrid& grid, const float* xyz, uint64_t first,
-                                                 uint64_t vertices, const std::byte* ids, uint32_t stride, uint64_t n,
-                                                 uint32_t* cells) {
+                                                 const std::byte* ids, uint32_t stride, uint64_t n, uint32_t* cells) {
   const uint64_t whole = n / 4 * 4;
   __m256d min[3], extent[3], dims[3], last[3];
   bool spread[3];
@@ -80,7 +77,7 @@ __attribute__((target("avx2"))) void cells_avx2(const BlockGrid& grid, const flo
   const __m128i first32 = _mm_set1_epi32(int(uint32_t(first)));
   for (uint64_t i = 0; i < whole; i += 4) {
     if (i + prefetch_ahead + 4 <= n) {
-      for (uint64_t j = 0; j < 4; ++j) prefetch_face(xyz, first, vertices, ids + (i + prefetch_ahead + j) * stride);
+      for (uint64_t j = 0; j < 4; ++j) prefetch_face(xyz, first, ids + (i + prefetch_ahead + j) * stride);
     }
     uint32_t v[4][3];
     for (int j = 0; j < 4; ++j) std::memcpy(v[j], ids + (i + uint64_t(j)) * stride, sizeof v[j]);
@@ -115,7 +112,7 @@ __attribute__((target("avx2"))) void cells_avx2(const BlockGrid& grid, const flo
   // halves dirty, ran three times slower (the scalar kernel, and every later loop on
   // the thread).
   _mm256_zeroupper();
-  cells_scalar(grid, xyz, first, vertices, ids + whole * stride, stride, n - whole, cells + whole);
+  cells_scalar(grid, xyz, first, ids + whole * stride, stride, n - whole, cells + whole);
 }
 
 // Division-free cells. Per axis, cell_of's index of the barycenter is a function of
@@ -210,10 +207,10 @@ uint32_t axis_index(const AxisSteps& axis, double t) {
   return uint32_t(std::upper_bound(axis.steps.begin(), axis.steps.end(), t) - axis.steps.begin());
 }
 
-void cells_steps(const GridSteps& steps, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
+void cells_steps(const GridSteps& steps, const float* xyz, uint64_t first, const std::byte* ids,
                  uint32_t stride, uint64_t n, uint32_t* cells) {
   const BlockGrid& grid = steps.grid;
-  for_each_face(xyz, first, vertices, ids, stride, n, cells, [&](const float* a, const float* b, const float* c) {
+  for_each_face(xyz, first, ids, stride, n, cells, [&](const float* a, const float* b, const float* c) {
     uint32_t idx[3];
     for (int k = 0; k < 3; ++k) idx[k] = axis_index(steps.axis[k], double(a[k]) + double(b[k]) + double(c[k]));
     return (idx[2] * grid.dims[1] + idx[1]) * grid.dims[0] + idx[0];
@@ -242,31 +239,53 @@ bool steps_vector_fit(const GridSteps& steps) {
   return _mm256_cvtps_pd(_mm_movelh_ps(xy, _mm_load_ss(p + 2)));
 }
 
+// A face's cell from its M steps an axis: each lane counts the steps its sum reaches
+// as an integer (a compare's all-ones is -1), and the cell is the counts' dot product
+// with the weights in u64 lanes: exact, and two instructions a step where counting in
+// doubles took three (and the dot product in doubles two more).
+// `origin`: where vertex 0's position would be (xyz - 3 * first, as an address: the
+// subtraction done once, not six times a face).
+[[gnu::always_inline]] inline const float* position_at(uintptr_t origin, uint32_t id) {
+  return reinterpret_cast<const float*>(origin + 3 * sizeof(float) * uint64_t(id));
+}
+
+template <size_t M>
+[[gnu::always_inline]] __attribute__((target("avx2"))) inline uint32_t steps_cell(const __m256d* s, __m256d drop,
+                                                                                  __m256i weight, uintptr_t origin,
+                                                                                  const std::byte* face) {
+  // (a + b) + c per lane, the scalar kernels' sum.
+  const __m256d t = _mm256_add_pd(_mm256_add_pd(corner_xyz(position_at(origin, id_at(face))),
+                                                corner_xyz(position_at(origin, id_at(face + 4)))),
+                                  corner_xyz(position_at(origin, id_at(face + 8))));
+  __m256i idx = _mm256_setzero_si256();
+  for (size_t j = 0; j < M; ++j) idx = _mm256_sub_epi64(idx, _mm256_castpd_si256(_mm256_cmp_pd(t, s[j], _CMP_GE_OQ)));
+  idx = _mm256_andnot_si256(_mm256_castpd_si256(_mm256_cmp_pd(t, drop, _CMP_GE_OQ)), idx);
+  const __m256i w = _mm256_mul_epu32(idx, weight);
+  const __m128i pair = _mm_add_epi64(_mm256_castsi256_si128(w), _mm256_extracti128_si256(w, 1));
+  return uint32_t(_mm_cvtsi128_si64(_mm_add_epi64(pair, _mm_unpackhi_epi64(pair, pair))));
+}
+
 // The loop for exactly M steps an axis, unrolled: the steps stay in registers and the
 // corners never go through the stack (with a run-time count, GCC kept both in memory:
 // ~110 instructions a face). `lanes`: the M steps, then the drop; `weights` the cell's.
+// In two parts, so that only the first asks whether a face lies ahead to prefetch.
 template <size_t M>
-__attribute__((target("avx2"))) void cells_steps_avx2_m(const double (*lanes)[4], const double* weights,
-                                                         const float* xyz, uint64_t first, uint64_t vertices,
-                                                         const std::byte* ids, uint32_t stride, uint64_t n,
-                                                         uint32_t* cells) {
+__attribute__((target("avx2"))) void cells_steps_avx2_m(const double (*lanes)[4], const uint64_t* weights,
+                                                         const float* xyz, uint64_t first, const std::byte* ids,
+                                                         uint32_t stride, uint64_t n, uint32_t* cells) {
   __m256d s[M > 0 ? M : 1];
   for (size_t j = 0; j < M; ++j) s[j] = _mm256_load_pd(lanes[j]);
-  const __m256d drop = _mm256_load_pd(lanes[M]), weight = _mm256_load_pd(weights), one = _mm256_set1_pd(1.0);
-  for (uint64_t i = 0; i < n; ++i) {
-    if (i + prefetch_ahead < n) prefetch_face(xyz, first, vertices, ids + (i + prefetch_ahead) * stride);
-    const std::byte* face = ids + i * stride;
-    // (a + b) + c per lane, the scalar kernels' sum.
-    const __m256d t = _mm256_add_pd(_mm256_add_pd(corner_xyz(xyz + 3 * (id_at(face) - first)),
-                                                  corner_xyz(xyz + 3 * (id_at(face + 4) - first))),
-                                    corner_xyz(xyz + 3 * (id_at(face + 8) - first)));
-    __m256d idx = _mm256_setzero_pd();
-    for (size_t j = 0; j < M; ++j) idx = _mm256_add_pd(idx, _mm256_and_pd(_mm256_cmp_pd(t, s[j], _CMP_GE_OQ), one));
-    idx = _mm256_andnot_pd(_mm256_cmp_pd(t, drop, _CMP_GE_OQ), idx);
-    const __m256d w = _mm256_mul_pd(idx, weight);
-    const __m128d pair = _mm_add_pd(_mm256_castpd256_pd128(w), _mm256_extractf128_pd(w, 1));
-    cells[i] = uint32_t(_mm_cvtsd_si64(_mm_add_sd(pair, _mm_unpackhi_pd(pair, pair))));
+  const __m256d drop = _mm256_load_pd(lanes[M]);
+  const __m256i weight = _mm256_load_si256(reinterpret_cast<const __m256i*>(weights));
+  const uintptr_t origin = reinterpret_cast<uintptr_t>(xyz) - 3 * sizeof(float) * first;
+  const uint64_t prefetching = n > prefetch_ahead ? n - prefetch_ahead : 0;
+  for (uint64_t i = 0; i < prefetching; ++i) {
+    const std::byte* ahead = ids + (i + prefetch_ahead) * stride;
+#pragma GCC unroll 3
+    for (int k = 0; k < 3; ++k) __builtin_prefetch(position_at(origin, id_at(ahead + 4 * k)));
+    cells[i] = steps_cell<M>(s, drop, weight, origin, ids + i * stride);
   }
+  for (uint64_t i = prefetching; i < n; ++i) cells[i] = steps_cell<M>(s, drop, weight, origin, ids + i * stride);
   _mm256_zeroupper();
 }
 
@@ -275,9 +294,8 @@ constexpr auto steps_kernels(std::index_sequence<M...>) {
   return std::array{&cells_steps_avx2_m<M>...};
 }
 
-void cells_steps_avx2(const GridSteps& steps, const float* xyz, uint64_t first,
-                                                       uint64_t vertices, const std::byte* ids, uint32_t stride,
-                                                       uint64_t n, uint32_t* cells) {
+void cells_steps_avx2(const GridSteps& steps, const float* xyz, uint64_t first, const std::byte* ids,
+                      uint32_t stride, uint64_t n, uint32_t* cells) {
   const double nan = std::numeric_limits<double>::quiet_NaN();
   size_t m = 0;
   for (const AxisSteps& axis : steps.axis) m = std::max(m, axis.steps.size());
@@ -288,11 +306,11 @@ void cells_steps_avx2(const GridSteps& steps, const float* xyz, uint64_t first,
       lanes[j][k] = j == m ? (axis ? axis->drop : nan) : axis && j < axis->steps.size() ? axis->steps[j] : nan;
     }
   }
-  // The cell as a dot product: exact in doubles (below 2^32).
+  // The cell as a dot product (below 2^32, as are the weights).
   const BlockGrid& grid = steps.grid;
-  alignas(32) const double weights[4] = {1.0, double(grid.dims[0]), double(grid.dims[0]) * grid.dims[1], 0.0};
+  alignas(32) const uint64_t weights[4] = {1, grid.dims[0], uint64_t(grid.dims[0]) * grid.dims[1], 0};
   static constexpr auto kernels = steps_kernels(std::make_index_sequence<max_vector_steps + 1>());
-  kernels[m](lanes, weights, xyz, first, vertices, ids, stride, n, cells);
+  kernels[m](lanes, weights, xyz, first, ids, stride, n, cells);
 }
 
 bool avx2_fits(uint64_t vertices) { return 3 * vertices + 3 <= uint64_t(INT32_MAX); }
@@ -306,16 +324,16 @@ bool face_cells_kernel_available(FaceCellsKernel kernel) {
 void face_cells_xyz(FaceCellsKernel kernel, const BlockGrid& grid, const float* xyz, uint64_t first,
                     uint64_t vertices, const std::byte* ids, uint32_t stride, uint64_t n, uint32_t* cells) {
   if (kernel == FaceCellsKernel::avx2 && avx2_fits(vertices)) {
-    cells_avx2(grid, xyz, first, vertices, ids, stride, n, cells);
+    cells_avx2(grid, xyz, first, ids, stride, n, cells);
   } else if (kernel == FaceCellsKernel::steps && steps_fit(grid)) {
     const GridSteps& steps = grid_steps(grid);
     if (__builtin_cpu_supports("avx2") && steps_vector_fit(steps)) {
-      cells_steps_avx2(steps, xyz, first, vertices, ids, stride, n, cells);
+      cells_steps_avx2(steps, xyz, first, ids, stride, n, cells);
     } else {
-      cells_steps(steps, xyz, first, vertices, ids, stride, n, cells);
+      cells_steps(steps, xyz, first, ids, stride, n, cells);
     }
   } else {
-    cells_scalar(grid, xyz, first, vertices, ids, stride, n, cells);
+    cells_scalar(grid, xyz, first, ids, stride, n, cells);
   }
 }
 

@@ -16,8 +16,9 @@ namespace qemflow::engine {
 enum class FaceCellsKernel { scalar, avx2, steps };
 
 // Cells of `n` faces: face i's ids are three u32 at `ids + i * stride`; vertex v's
-// position is xyz[3 * (v - first)] (ids below `first` wrap). `vertices` bounds the
-// prefetches only: every face's ids must lie in [first, first + vertices). Results go
+// position is xyz[3 * (v - first)] (ids below `first` wrap). Every face's ids must lie
+// in [first, first + vertices) (nothing checks them; the AVX2 kernel is chosen by
+// `vertices`, its gathers' 32-bit offsets must reach). Results go
 // to cells[0, n), which may overlap no record.
 void face_cells_xyz(const BlockGrid& grid, const float* xyz, uint64_t first, uint64_t vertices, const std::byte* ids,
                     uint32_t stride, uint64_t n, uint32_t* cells);
