@@ -1494,7 +1494,7 @@ uint64_t PatchDecimator::apply_cut(const RoundCut& cut) {
   return removed;
 }
 
-PatchOutput PatchDecimator::extract(bool owned_only) const {
+PatchOutput PatchDecimator::extract(bool owned_only, OutputOrder order) const {
   // Every pass in parallel (the extract ran on one core): ordered selections
   // (parallel_select) and per-element writes give the serial loops' arrays.
   // Its scratch arrays are UninitializedVectors and the output's are sized by
@@ -1512,24 +1512,34 @@ PatchOutput PatchDecimator::extract(bool owned_only) const {
     faces[live + i] = {passthrough_gids_[passthrough_kept[i]], passthrough_[passthrough_kept[i]]};
   // Face and vertex gids are unique: the radix sorts give the comparison sorts' order
   // (the vertices' one compared gids through vgid_, a cache miss per comparison).
-  radix_sort_by_key(faces, [](const auto& x) { return x.first; });
+  const bool sorted = order == OutputOrder::by_gid;
+  if (sorted) radix_sort_by_key(faces, [](const auto& x) { return x.first; });
   UninitializedVector<uint8_t> used;
   parallel_assign(used, pos_.size(), uint8_t{0});
   parallel_over(faces.size(), [&](size_t f) {
     for (uint32_t v : faces[f].second) raise_flag(used[v]);
   }, 4096);
-  UninitializedVector<std::pair<uint64_t, uint32_t>> by_gid;
-  parallel_select(
-      pos_.size(), [&](size_t v) { return used[v] != 0; }, [&](size_t total) { by_gid.resize(total); },
-      [&](size_t v, size_t i) { by_gid[i] = {vgid_[v], uint32_t(v)}; });
-  release_memory(used);
-  radix_sort_by_key(by_gid, [](const auto& x) { return x.first; });
-  const size_t kept = by_gid.size();
-  // The pairs (16 B a vertex) go before the output arrays are made: the finish's lease
-  // (kInCoreBytesPerExtraVertex) counts what the extract holds at its peak.
-  UninitializedVector<uint32_t> verts(kept);
-  parallel_over(kept, [&](size_t i) { verts[i] = by_gid[i].second; }, 4096);
-  release_memory(by_gid);
+  // The output's vertices (local ids), in gid order (the pairs, 16 B a vertex, go
+  // before the output arrays are made: the finish's lease, kInCoreBytesPerExtraVertex,
+  // counts what the extract holds at its peak) or in local order.
+  UninitializedVector<uint32_t> verts;
+  auto used_vertex = [&](size_t v) { return used[v] != 0; };
+  if (sorted) {
+    UninitializedVector<std::pair<uint64_t, uint32_t>> by_gid;
+    parallel_select(
+        pos_.size(), used_vertex, [&](size_t total) { by_gid.resize(total); },
+        [&](size_t v, size_t i) { by_gid[i] = {vgid_[v], uint32_t(v)}; });
+    release_memory(used);
+    radix_sort_by_key(by_gid, [](const auto& x) { return x.first; });
+    verts.resize(by_gid.size());
+    parallel_over(verts.size(), [&](size_t i) { verts[i] = by_gid[i].second; }, 4096);
+  } else {
+    parallel_select(
+        pos_.size(), used_vertex, [&](size_t total) { verts.resize(total); },
+        [&](size_t v, size_t i) { verts[i] = uint32_t(v); });
+    release_memory(used);
+  }
+  const size_t kept = verts.size();
   UninitializedVector<uint32_t> remap;
   parallel_assign(remap, pos_.size(), kNone);
   auto size_each = [&](auto&... arrays) { (parallel_resize(arrays, kept), ...); };

@@ -226,7 +226,7 @@ struct RoundCut {
 // The owned faces and their vertices' state (enough to rebuild a patch of the next
 // epoch: PatchInput's quadrics / locked, and degrees to tell complete fans).
 struct PatchOutput {
-  std::vector<Vec3> positions;           // sorted by global id
+  std::vector<Vec3> positions;           // sorted by global id (extract's default order)
   std::vector<uint64_t> vertex_gids;
   std::vector<Quadric> quadrics;
   std::vector<uint8_t> locked;
@@ -238,7 +238,7 @@ struct PatchOutput {
   // trusted (the global best), kBestUnknown elsewhere. Empty otherwise.
   std::vector<uint64_t> best_gids;
   std::vector<double> best_costs;
-  std::vector<std::array<uint32_t, 3>> faces;  // sorted by global face id
+  std::vector<std::array<uint32_t, 3>> faces;  // sorted by global face id (as positions)
   std::vector<uint64_t> face_gids;
   uint64_t untrusted_vertices = 0;       // output vertices whose state may be wrong
 };
@@ -300,8 +300,11 @@ class PatchDecimator {
   uint64_t frozen_refreshes() const { return frozen_refreshes_; }
   uint64_t frozen_collapses() const { return frozen_collapses_; }
   // The owned faces (all faces with owned_only = false, for diagnostics) and their
-  // vertices.
-  PatchOutput extract(bool owned_only = true) const;
+  // vertices. `order` local: faces and vertices in this decimator's local order instead
+  // of by global id (PatchOutput's order), for a caller that orders them itself (the
+  // out-of-core export, by Morton code): the same arrays otherwise, without the two sorts.
+  enum class OutputOrder { by_gid, local };
+  PatchOutput extract(bool owned_only = true, OutputOrder order = OutputOrder::by_gid) const;
 
  private:
   struct Scratch;

@@ -1627,7 +1627,7 @@ struct Runner {
           return;
         }
         if (next) {
-          out = d.extract();
+          out = d.extract(true, PatchDecimator::OutputOrder::local);  // export_patch orders the faces
           if (out->untrusted_vertices) ok = false;
         }
       });
@@ -1727,6 +1727,9 @@ struct Runner {
     return total;
   }
 
+  // `out` in the decimator's local order (extract's OutputOrder::local): its faces are
+  // ordered here, by (Morton code, face id). The box's order does not matter: positions
+  // are finite, and a -0.0 / +0.0 bound gives the same codes.
   void export_patch(const PatchOutput& out, uint32_t p, MeshState& next) {
     Box box;
     for (const auto& pos : out.positions) box.add(pos);
@@ -1743,11 +1746,19 @@ struct Runner {
                           }
                         });
     });
-    // (code, face) pairs are unique and the faces ascending: the stable radix sort by code
-    // gives std::sort's order of the pairs.
+    // By code, then the faces of one code by id: the stable radix sort by code, then each
+    // run of equal codes (a few faces; most codes are unique) sorted by id, where sorting
+    // all by id first took a radix sort of its own.
     job.arena().execute([&] {  // the sort is parallel: in the arena, --threads holds
       radix_sort_by_key(keyed, [](const std::pair<uint32_t, uint32_t>& x) { return uint64_t{x.first}; });
     });
+    for (size_t begin = 0, end; begin < keyed.size(); begin = end) {
+      end = begin + 1;
+      while (end < keyed.size() && keyed[end].first == keyed[begin].first) ++end;
+      if (end - begin > 1)
+        std::sort(keyed.begin() + ptrdiff_t(begin), keyed.begin() + ptrdiff_t(end),
+                  [&](const auto& a, const auto& b) { return out.face_gids[a.second] < out.face_gids[b.second]; });
+    }
     std::vector<uint32_t> order(keyed.size());
     for (size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
     release_memory(keyed);
