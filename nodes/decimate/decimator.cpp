@@ -20,6 +20,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "util/morton.hpp"
 #include "util/parallel_fill.hpp"
 #include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
@@ -191,17 +192,6 @@ void neighbor_faces(uint32_t v, const std::vector<uint32_t>& faces,
     else
       out.push_back({u, 1, j});
   }
-}
-
-// x's low 21 bits, two zero bits after each (a Morton code's lane).
-uint64_t spread_bits21(uint64_t x) {
-  x &= 0x1fffff;
-  x = (x | x << 32) & 0x1f00000000ffffull;
-  x = (x | x << 16) & 0x1f0000ff0000ffull;
-  x = (x | x << 8) & 0x100f00f00f00f00full;
-  x = (x | x << 4) & 0x10c30c30c30c30c3ull;
-  x = (x | x << 2) & 0x1249249249249249ull;
-  return x;
 }
 
 // Renumbers the patch's vertices along a Z-order (Morton) curve of their positions and

@@ -24,6 +24,7 @@
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
 #include "util/error.hpp"
+#include "util/morton.hpp"
 #include "util/parallel_fill.hpp"
 #include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
@@ -536,16 +537,14 @@ void remove_load_files(Job& job, ScratchStore& scratch, const engine::LoadedMesh
 
 // Morton code of a point in a box (10 bits per axis): chunks of spatially close faces.
 uint32_t morton(const Point& p, const Box& box) {
-  uint32_t code = 0;
-  uint32_t q[3];
+  uint64_t q[3];
   for (int k = 0; k < 3; ++k) {
     const double extent = box.max[k] - box.min[k];
     const double t = extent > 0 ? (p[k] - box.min[k]) / extent : 0.0;
     q[k] = uint32_t(std::clamp(t * 1023.0, 0.0, 1023.0));
   }
-  for (int b = 9; b >= 0; --b)
-    for (int k = 0; k < 3; ++k) code = (code << 1) | ((q[k] >> b) & 1u);
-  return code;
+  // Bit b of axis k at bit 3 b + 2 - k: axis 0's bits lead each triple.
+  return uint32_t(spread_bits21(q[0]) << 2 | spread_bits21(q[1]) << 1 | spread_bits21(q[2]));
 }
 
 // ---------------------------------------------------------------- conversion
