@@ -457,9 +457,15 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
     uint32_t best = kNone;
     if (gid != kBestNone) {
       if (immovable(v)) return;  // refresh_best gives an immovable vertex none
-      for (uint32_t c : corners_of(v))
-        for (uint32_t u : fv_[c / 3])
-          if (u != v && vgid_[u] == gid) best = u;
+      // Gids are unique in the patch: the first neighbour with the gid is the one.
+      for (uint32_t c : corners_of(v)) {
+        const auto& t = fv_[c / 3];
+        const uint32_t next = t[kNextSlot[c % 3]], prev = t[kPrevSlot[c % 3]];  // v's neighbours (no repeats)
+        if (vgid_[next] == gid || vgid_[prev] == gid) {
+          best = vgid_[next] == gid ? next : prev;
+          break;
+        }
+      }
       if (best == kNone) return;  // not a neighbour: not the state the value is for
     }
     // As a refresh leaves it (no best: cost 0); untouched and clean, so the first round
