@@ -621,8 +621,6 @@ class ResidentBlocks {
         // Whole records, rounded up: a full page of PLY face records is then at least
         // page_bytes, which the output's sink writes as it lies, without a copy.
         pages.back().reserve((bytes + record_size_ - 1) / record_size_ * record_size_);
-        // A resident re-encode's blocks are most of its fresh pages (a fault apiece).
-        populate_pages(pages.back().data(), pages.back().data() + pages.back().capacity());
       }
       Bytes& page = pages.back();
       const size_t at = page.size();

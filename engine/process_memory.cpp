@@ -73,16 +73,6 @@ const void* release_pages(const void* begin, const void* end) {
   return reinterpret_cast<const void*>(to);
 }
 
-void populate_pages(void* begin, void* end) {
-#ifdef MADV_POPULATE_WRITE
-  static const uintptr_t page = uintptr_t(sysconf(_SC_PAGESIZE));
-  const uintptr_t from = (uintptr_t(begin) + page - 1) & ~(page - 1), to = uintptr_t(end) & ~(page - 1);
-  if (to > from) madvise(reinterpret_cast<void*>(from), to - from, MADV_POPULATE_WRITE);
-#else
-  (void)begin, (void)end;
-#endif
-}
-
 void advise_huge_pages(const void* begin, const void* end) {
   constexpr uintptr_t huge = 2 << 20;
   const uintptr_t from = (uintptr_t(begin) + huge - 1) & ~(huge - 1), to = uintptr_t(end) & ~(huge - 1);
