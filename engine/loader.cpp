@@ -486,12 +486,11 @@ struct InputStream {
       item.batch.vertices.clear();
     } else if (decoded_records && item.raw.part == io::RawChunk::Part::faces) {
       if (spare) spare->lend(item);
-      uint64_t in_place = 0;
-      if (decoded_records == ply_triangle_record_size &&
-          bulk->check_ply_triangles(item.raw, item.batch.first_triangle, in_place)) {
-        item.records_in_raw = true;  // no copy: the bytes read are the records
-      } else if (decoded_records == ply_triangle_record_size) {
-        bulk->decode_ply_triangles(item.raw, item.block_records, item.batch.first_triangle);
+      if (decoded_records == ply_triangle_record_size) {
+        uint64_t checked = 0;
+        // No copy where the bytes read are the records already.
+        item.records_in_raw = bulk->check_ply_triangles(item.raw, item.batch.first_triangle, checked);
+        if (!item.records_in_raw) bulk->decode_ply_triangles(item.raw, item.block_records, item.batch.first_triangle);
       } else if (decoded_records == id_triangle32_record_size) {
         bulk->decode_id_triangles32(item.raw, item.block_records, item.batch.first_triangle);
       } else {

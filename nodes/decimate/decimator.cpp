@@ -461,10 +461,8 @@ void PatchDecimator::restore_bests(const std::vector<uint64_t>& gids, const std:
       for (uint32_t c : corners_of(v)) {
         const auto& t = fv_[c / 3];
         const uint32_t next = t[kNextSlot[c % 3]], prev = t[kPrevSlot[c % 3]];  // v's neighbours (no repeats)
-        if (vgid_[next] == gid || vgid_[prev] == gid) {
-          best = vgid_[next] == gid ? next : prev;
-          break;
-        }
+        best = vgid_[next] == gid ? next : vgid_[prev] == gid ? prev : kNone;
+        if (best != kNone) break;
       }
       if (best == kNone) return;  // not a neighbour: not the state the value is for
     }
