@@ -350,6 +350,8 @@ struct PatchDecimator::Scratch {
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
   uint64_t scanned = 0;    // faces read by validity checks and charges (prepare's counter)
   uint64_t frozen = 0;     // refreshes skipped at frozen vertices (prepare's counter)
+  uint64_t charged = 0;    // deviation charges computed (prepare's counter)
+  uint64_t checked = 0;    // validity checks computed (prepare's counter)
 };
 
 PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : params_(params) {
@@ -870,6 +872,7 @@ bool PatchDecimator::edge_valid(uint32_t v, std::span<const uint32_t> corners_v,
   if (known) return known == kEdgeValid;
   // The same function of the same inputs as quadric_cost's position: the same bits.
   s.scanned += corners_v.size() + adj_count_[w];
+  ++s.checked;
   const bool valid = collapse_valid(v, corners_v, fan_v, w, position ? *position : edge_position(v, w));
   std::atomic_ref<uint8_t>(falive_[at / 3])
       .fetch_or(static_cast<uint8_t>((valid ? kEdgeValid : kEdgeInvalid) << shift), std::memory_order_relaxed);
@@ -925,6 +928,7 @@ double PatchDecimator::edge_cost(uint32_t v, uint32_t w, uint32_t corner, uint32
                                  double quadric, const Vec3& position, Scratch& s) {
   const bool v_lo = vgid_[v] < vgid_[w];
   s.scanned += adj_count_[v] + adj_count_[w];
+  ++s.charged;
   double cost = quadric + params_.deviation_weight * (v_lo ? deviation(v, w, position, s)
                                                            : deviation(w, v, position, s));
   if (!std::isfinite(cost)) cost = kSkipEdge;
@@ -1213,6 +1217,8 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
     refreshes_ += s.refreshed;
     scanned_faces_ += s.scanned;
     frozen_refreshes_ += s.frozen;
+    charges_ += s.charged;
+    validity_checks_ += s.checked;
   }
   bests_exact_ = !cut;
   update_partners();

@@ -295,6 +295,10 @@ class PatchDecimator {
   // Faces read by validity checks and deviation charges so far (both endpoints'
   // lists): the work kMaxCollapseDegree bounds, for tests.
   uint64_t scanned_faces() const { return scanned_faces_; }
+  // Deviation charges (edge costs computed in full) and validity checks computed by
+  // prepare so far: the work a refresh does, for reports and tests.
+  uint64_t charges() const { return charges_; }
+  uint64_t validity_checks() const { return validity_checks_; }
   // Work skipped at frozen vertices (see frozen()): refreshes of their best edge, and
   // inexact candidates not owned that were under the cut but not collapsed.
   uint64_t frozen_refreshes() const { return frozen_refreshes_; }
@@ -432,7 +436,7 @@ class PatchDecimator {
   uint64_t locked_count_ = 0;
   uint64_t dropped_faces_ = 0;
   uint64_t untrusted_count_ = 0;
-  uint64_t restored_bests_ = 0, refreshes_ = 0, scanned_faces_ = 0;
+  uint64_t restored_bests_ = 0, refreshes_ = 0, scanned_faces_ = 0, charges_ = 0, validity_checks_ = 0;
   uint64_t frozen_refreshes_ = 0, frozen_collapses_ = 0;
   // QEMFLOW_VERIFY_CARRIED: the vertices restore_bests restored, until the first
   // prepare checks them (empty otherwise).
