@@ -1616,6 +1616,8 @@ struct Runner {
         // Without rounds the summary's prepare is the first.
         if (plan.cuts.empty()) stats.first_round_refreshes += d.refreshes();
         stats.patch_refreshes += d.refreshes();
+        stats.patch_charges += d.charges();
+        stats.patch_validity_checks += d.validity_checks();
         stats.frozen_refreshes += d.frozen_refreshes();
         stats.frozen_collapses += d.frozen_collapses();
         summary = d.summarize();

@@ -146,6 +146,9 @@ struct OocStats {
   // Patch work: best-edge refreshes run, and those skipped at frozen (untrusted, not
   // owned) vertices with the collapses skipped there (PatchDecimator::frozen_refreshes).
   uint64_t patch_refreshes = 0, frozen_refreshes = 0, frozen_collapses = 0;
+  // The patches' deviation charges and validity checks (PatchDecimator::charges /
+  // validity_checks), the refreshes' work.
+  uint64_t patch_charges = 0, patch_validity_checks = 0;
   // Where the out-of-core patch work goes (redos included): wall and process CPU seconds
   // per phase of run_part, in this order: gather (plan, read, filter), build (BFS halo,
   // PatchInput), setup (PatchDecimator's constructor), first_round (the epoch's first

@@ -131,6 +131,8 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     report["in_core_carried_bests"] = st.in_core_carried_bests;
     report["first_round_refreshes"] = st.first_round_refreshes;
     report["patch_refreshes"] = st.patch_refreshes;
+    report["patch_charges"] = st.patch_charges;
+    report["patch_validity_checks"] = st.patch_validity_checks;
     report["frozen_refreshes"] = st.frozen_refreshes;
     report["frozen_collapses"] = st.frozen_collapses;
     for (size_t i = 0; i < OocStats::kPhases; ++i)

@@ -164,6 +164,18 @@ TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
          " --target-faces 301 --in-core --quiet --deviation-weight 0");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "charged.ply").string() + " --target-faces 301 --in-core --quiet");
   EXPECT_NE(file_bytes(dir / "plain.ply"), file_bytes(dir / "charged.ply"));
+  // The reports count the charges: none in plain QEM, in core or in the patches.
+  const auto plain = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 1 --deviation-weight 0");
+  EXPECT_EQ(plain["patch_charges"].get<uint64_t>(), 0u);
+  EXPECT_GT(plain["patch_validity_checks"].get<uint64_t>(), 0u);
+  const auto charged = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 1");
+  EXPECT_GT(charged["patch_charges"].get<uint64_t>(), 0u);
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "plain.ply").string() +
+         " --target-faces 301 --in-core --quiet --deviation-weight 0 --report " + (dir / "plain.json").string());
+  const auto in_core = read_json(dir / "plain.json");
+  EXPECT_EQ(in_core["charges"].get<uint64_t>(), 0u);
+  EXPECT_GT(in_core["validity_checks"].get<uint64_t>(), 0u);
+  EXPECT_GT(in_core["refreshes"].get<uint64_t>(), 0u);
   std::string out;
   EXPECT_EQ(run_command(q() + " simplify " + mesh.string() + " " + (dir / "bad.ply").string() +
                             " --ratio 0.1 --deviation-weight -1 --quiet",

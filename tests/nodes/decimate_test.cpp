@@ -108,6 +108,23 @@ TEST(Decimate, ReportsRoundsAndKeepsOutputOrderedById) {
   EXPECT_EQ(r.stats.output_faces, 500u);
 }
 
+// The work counters: a refresh computes validity checks and, with the deviation charge
+// on, charges; plain QEM (weight 0) computes every cost exactly without one.
+TEST(Decimate, CountsItsRefreshesChargesAndValidityChecks) {
+  const auto charged = run(qemflow::testing::icosphere(4, 0.01), 500);
+  EXPECT_GT(charged.stats.refreshes, charged.stats.input_vertices);  // every vertex at least once
+  EXPECT_GT(charged.stats.validity_checks, 0u);
+  EXPECT_GT(charged.stats.charges, 0u);
+  SimplifyOptions o;
+  o.target_faces = 500;
+  o.params.deviation_weight = 0.0;
+  Mesh m = qemflow::testing::icosphere(4, 0.01);
+  const auto plain = simplify_in_core(std::move(m.points), std::move(m.triangles), o);
+  EXPECT_EQ(plain.stats.charges, 0u);
+  EXPECT_GT(plain.stats.validity_checks, 0u);
+  EXPECT_GT(plain.stats.refreshes, plain.stats.input_vertices);
+}
+
 // Golden output: catches accidental changes of the in-core result (speed work must keep
 // it). Update only deliberately, with a note in the commit message. Last changed by the
 // epoch schedule: a rising cut per round (EpochOptions::cut_rise, 0.5 bins).
