@@ -224,6 +224,7 @@ void run_simplify(const SimplifyArgs& args) {
         {"validity_checks", st.validity_checks},
         {"epoch_rounds", args.epochs.epoch_rounds},
         {"cut_rise", args.epochs.cut_rise},
+        {"flat_cut_rise", args.epochs.flat_cut_rise},
         {"patches", 1},
         {"budget_bytes", 0},
         {"peak_rss_bytes", peak_rss_bytes()},
@@ -305,7 +306,13 @@ void add_simplify_command(CLI::App& root, Run& run) {
       ->capture_default_str()
       ->check(CLI::Range(1u, 64u));
   cmd->add_option("--cut-rise", args->epochs.cut_rise,
-                  "cost bins (4 per octave) the cut rises per round of an epoch; 0: one cut per epoch")
+                  "cost bins (4 per octave) the cut rises per round of an epoch where no candidate is "
+                  "flat; 0: one cut per epoch")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 64.0));
+  cmd->add_option("--flat-cut-rise", args->epochs.flat_cut_rise,
+                  "the rise (at most --cut-rise) where 10% or more of the candidates' faces are flat "
+                  "(cost 0), linear between; >= --cut-rise: the fixed rise --cut-rise")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 64.0));
   cmd->add_option("--min-normal-cos", args->params.min_normal_cos,

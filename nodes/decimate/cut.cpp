@@ -35,6 +35,20 @@ RoundPlan plan_round(const RoundSummary& total, uint64_t faces, uint64_t target_
   return plan;
 }
 
+double epoch_cut_rise(const RoundSummary& total, const EpochOptions& options) {
+  // Flat regions (zero-cost candidates, bin 0) lose about the same share of their faces
+  // every round whatever the cut, since equal costs leave only the local minima of the
+  // tie order independent; the curved regions follow the cut. Fewer rounds for the same
+  // removal leave the flat regions dense and take the faces from the curved ones (the
+  // generated terrain's slab at rise 0.75: 2084 of its 10000 faces on the flat sides and
+  // bottom instead of 1070, RMS +36%), so where candidates are flat the epoch keeps
+  // the slow rise and its rounds.
+  const double slow = std::min(options.flat_cut_rise, options.cut_rise);
+  if (total.candidate_faces == 0) return slow;
+  const double flat_share = double(total.faces_per_bin[0]) / double(total.candidate_faces);
+  return slow + (options.cut_rise - slow) * std::max(0.0, 1.0 - flat_share / kFullyFlatShare);
+}
+
 EpochPlan plan_epoch(const RoundSummary& total, uint64_t faces, uint64_t target_faces,
                      bool relaxed, const EpochOptions& options) {
   EpochPlan plan;
@@ -67,13 +81,14 @@ EpochPlan plan_epoch(const RoundSummary& total, uint64_t faces, uint64_t target_
     if (double(faces) - left >= double(needed)) break;
     ++rounds;
   }
-  // Round r's cut (r = 0, 1, ...): the first round's bin raised by floor(r * cut_rise)
+  // Round r's cut (r = 0, 1, ...): the first round's bin raised by floor(r * rise)
   // bins, a schedule fixed in advance that follows (below) the pace at which the
   // round-by-round cut rises (about one bin per round), so no round takes much more
   // of its candidates than the first one does.
   plan.cuts.push_back(round.cut);
+  const double rise = epoch_cut_rise(total, options);
   for (uint32_t r = 1; r < rounds; ++r) {
-    const size_t bin = std::min<size_t>(kCostBins - 1, first_bin + size_t(std::floor(r * options.cut_rise)));
+    const size_t bin = std::min<size_t>(kCostBins - 1, first_bin + size_t(std::floor(r * rise)));
     plan.cuts.push_back({EdgeKey::above_all_of(cost_bin_upper(bin)), false});
   }
   return plan;

@@ -17,9 +17,10 @@
 //   stop, relax (no candidate anywhere: relax the guards once, plan again),
 //   exact (one round with the exact_cut of the owned candidate lists), or
 //   bin (rounds r = 0.., each: prepare_round, apply_cut(cuts[r])): cuts[0] by the rule
-//   above, cuts[r] = cuts[0]'s bin + floor(r * cut_rise) bins, a rise fixed in advance
+//   above, cuts[r] = cuts[0]'s bin + floor(r * rise) bins, a rise fixed for the epoch
 //   below the pace of the round-by-round cut (about one bin per round), so every
-//   round removes faces. Up to epoch_rounds rounds, as long as the first round's
+//   round removes faces: 0.75 bins, or 0.5 where many candidates are flat (cost 0;
+//   flat regions shrink per round, not per bin). Up to epoch_rounds rounds, as long as the first round's
 //   removal plus round_fraction of the faces left per later round stays within what
 //   is needed (END GAME: fewer rounds, then exact), so the exact target is still hit.
 #include <cstdint>
@@ -44,7 +45,12 @@ struct EpochOptions {
   double round_fraction = 0.1;      // most faces a round may remove
   double candidate_fraction = 0.75;  // most of the candidates' faces a round may remove
   uint32_t epoch_rounds = 4;        // rounds per epoch in the bulk phase (E)
-  double cut_rise = 0.5;            // cost bins (4 per octave) the cut rises per round of an epoch
+  // Cost bins (4 per octave) the cut rises per round of an epoch: cut_rise where no
+  // candidate is flat (cost 0), min(flat_cut_rise, cut_rise) where kFullyFlatShare of the
+  // candidates' faces or more are flat, linear in the flat share between (epoch_cut_rise).
+  // flat_cut_rise >= cut_rise: the fixed rise cut_rise.
+  double cut_rise = 0.75;
+  double flat_cut_rise = 0.5;
 };
 
 struct EpochPlan {
@@ -52,6 +58,13 @@ struct EpochPlan {
   std::vector<RoundCut> cuts;  // bin_cut: the cut of each round of the epoch (rising)
   uint64_t needed = 0;         // exact_cut: faces still to remove
 };
+
+// The flat share of the candidates' faces at which an epoch's cut rises at flat_cut_rise.
+inline constexpr double kFullyFlatShare = 0.1;
+
+// The epoch's rise in bins per round (EpochOptions::cut_rise), from the share of the
+// summary's candidate faces that are flat (bin 0): a pure function of the summed sums.
+double epoch_cut_rise(const RoundSummary& total, const EpochOptions& options);
 
 // `total`: the summed summaries of the epoch's first round; `faces`: the global face
 // count; `relaxed`: the guards were relaxed already (relax is offered once).

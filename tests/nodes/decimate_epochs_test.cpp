@@ -463,6 +463,41 @@ TEST(DecimateEpochs, PlanEpochRisingCutsAndEndGame) {
   EXPECT_EQ(plan_epoch(s, 100, 100, false, o).kind, EpochPlan::Kind::stop);
 }
 
+TEST(DecimateEpochs, FlatCandidatesKeepTheSlowRise) {
+  // Curved candidates only: the cut rises cut_rise = 0.75 bins per round.
+  RoundSummary s;
+  s.faces_per_bin[cost_bin(1.0)] = 100;
+  s.faces_per_bin[cost_bin(4.0)] = 100;
+  s.candidate_faces = 200;
+  const EpochOptions o;
+  EXPECT_EQ(epoch_cut_rise(s, o), 0.75);
+  // Each round's cut in bins above the first curved bin (the first round's cut).
+  auto rises = [&] {
+    std::vector<size_t> bins;
+    for (const RoundCut& cut : plan_epoch(s, 10000, 100, false, o).cuts)
+      bins.push_back(cost_bin(cut.key.cost) - cost_bin(1.0));
+    return bins;
+  };
+  EXPECT_EQ(rises(), (std::vector<size_t>{0, 0, 1, 2}));
+  // A third of the candidates' faces flat (cost 0, bin 0): flat_cut_rise = 0.5; the
+  // first round takes the flat bin and the first curved one, the last two rounds share
+  // one bin more.
+  s.faces_per_bin[0] = 100;
+  s.candidate_faces = 300;
+  EXPECT_EQ(epoch_cut_rise(s, o), 0.5);
+  EXPECT_EQ(rises(), (std::vector<size_t>{0, 0, 1, 1}));
+  // Below kFullyFlatShare, linear in the flat share: 5% flat, halfway.
+  s.faces_per_bin[0] = 10;
+  s.candidate_faces = 200;
+  EXPECT_DOUBLE_EQ(epoch_cut_rise(s, o), 0.625);
+  // flat_cut_rise >= cut_rise: the fixed rise; the flat rise never exceeds cut_rise.
+  EpochOptions fixed;
+  fixed.flat_cut_rise = 1.0;
+  EXPECT_EQ(epoch_cut_rise(s, fixed), 0.75);
+  fixed.cut_rise = 0.25;
+  EXPECT_EQ(epoch_cut_rise(s, fixed), 0.25);
+}
+
 // Out of core, each patch sends exact_cut only its share of its candidates; the cut
 // must be the one the whole lists give. The hand-made case is the end game that broke
 // out of core (one face to go, a two-face candidate first): a share without the
