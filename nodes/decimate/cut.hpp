@@ -20,9 +20,10 @@
 //   above, cuts[r] = cuts[0]'s bin + floor(r * rise) bins, a rise fixed for the epoch
 //   below the pace of the round-by-round cut (about one bin per round), so every
 //   round removes faces: 0.75 bins, or 0.5 where many candidates are flat (cost 0;
-//   flat regions shrink per round, not per bin). Up to epoch_rounds rounds, as long as the first round's
-//   removal plus round_fraction of the faces left per later round stays within what
-//   is needed (END GAME: fewer rounds, then exact), so the exact target is still hit.
+//   flat regions shrink per round, not per bin). Up to epoch_rounds rounds, as long
+//   as the first round's removal plus round_fraction of the faces left per later round
+//   stays within what is needed (END GAME: fewer rounds, then exact), so the exact
+//   target is still hit.
 #include <cstdint>
 #include <optional>
 #include <span>
