@@ -112,6 +112,11 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     report["epochs"] = st.epochs;
     report["out_of_core_epochs"] = st.ooc_epochs;
     report["rounds"] = st.rounds;
+    // The schedule the epochs ran (the in-core report names it too).
+    const nodes::EpochOptions& schedule = command.options.simplify.epochs;
+    report["epoch_rounds"] = schedule.epoch_rounds;
+    report["cut_rise"] = schedule.cut_rise;
+    report["flat_cut_rise"] = schedule.flat_cut_rise;
     report["halo_redos"] = st.halo_redos;
     report["gather_reads"] = st.gather_reads;
     report["patch_splits"] = st.patch_splits;

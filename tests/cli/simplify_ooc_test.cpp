@@ -138,6 +138,10 @@ TEST(SimplifyOoc, CarriedBestEdgesKeepTheOutputAndSpareFirstRoundRefreshes) {
   auto r = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 1");
   EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "in_core.ply")) << "output differs from --in-core";
   EXPECT_GT(r["out_of_core_epochs"].get<uint64_t>(), 10u);
+  // The report names the schedule the epochs ran (the defaults here).
+  EXPECT_EQ(r["epoch_rounds"].get<uint32_t>(), 4u);
+  EXPECT_EQ(r["cut_rise"].get<double>(), 0.75);
+  EXPECT_EQ(r["flat_cut_rise"].get<double>(), 0.5);
   const uint64_t carried = r["carried_bests"].get<uint64_t>();
   EXPECT_GT(carried, 10 * r["first_round_refreshes"].get<uint64_t>());
   EXPECT_GT(carried, r["owned_faces_total"].get<uint64_t>() / 2);  // about one vertex per 2 faces
