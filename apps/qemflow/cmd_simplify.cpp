@@ -31,6 +31,7 @@
 #include "engine/trace.hpp"
 #include "nodes/pipeline/epochs.hpp"
 #include "io/indexed_mesh.hpp"
+#include "nodes/decimate/report_fields.hpp"
 #include "nodes/decimate/simplify.hpp"
 #include "util/error.hpp"
 
@@ -219,12 +220,6 @@ void run_simplify(const SimplifyArgs& args) {
         {"dropped_zero_area_faces", st.dropped_faces},
         {"rounds", st.rounds},
         {"epochs", st.epochs},
-        {"refreshes", st.refreshes},
-        {"charges", st.charges},
-        {"validity_checks", st.validity_checks},
-        {"epoch_rounds", args.epochs.epoch_rounds},
-        {"cut_rise", args.epochs.cut_rise},
-        {"flat_cut_rise", args.epochs.flat_cut_rise},
         {"patches", 1},
         {"budget_bytes", 0},
         {"peak_rss_bytes", peak_rss_bytes()},
@@ -236,6 +231,8 @@ void run_simplify(const SimplifyArgs& args) {
           {"extract", st.seconds_extract},
           {"write", seconds_write}}},
     };
+    nodes::report_schedule(report, args.epochs);
+    nodes::report_work(report, "", st.work);
     std::ofstream file(args.report);
     file << report.dump(2) << "\n";
     if (!file) throw Error(ErrorKind::resource, args.report + ": cannot write report");

@@ -243,6 +243,20 @@ struct PatchOutput {
   uint64_t untrusted_vertices = 0;       // output vertices whose state may be wrong
 };
 
+// The decimator's work so far: best-edge refreshes (prepare's calls of refresh_best),
+// deviation charges (edge costs computed in full) and validity checks. A round's cost is
+// mostly these, so the reports give them to tell a schedule's cost from the machine's
+// speed (report_work, nodes/decimate/report_fields.hpp).
+struct DecimatorWork {
+  uint64_t refreshes = 0, charges = 0, validity_checks = 0;
+  DecimatorWork& operator+=(const DecimatorWork& w) {
+    refreshes += w.refreshes;
+    charges += w.charges;
+    validity_checks += w.validity_checks;
+    return *this;
+  }
+};
+
 class PatchDecimator {
  public:
   PatchDecimator(PatchInput input, const DecimateParams& params);
@@ -295,10 +309,7 @@ class PatchDecimator {
   // Faces read by validity checks and deviation charges so far (both endpoints'
   // lists): the work kMaxCollapseDegree bounds, for tests.
   uint64_t scanned_faces() const { return scanned_faces_; }
-  // Deviation charges (edge costs computed in full) and validity checks computed by
-  // prepare so far: the work a refresh does, for reports and tests.
-  uint64_t charges() const { return charges_; }
-  uint64_t validity_checks() const { return validity_checks_; }
+  DecimatorWork work() const { return {refreshes_, charges_, validity_checks_}; }
   // Work skipped at frozen vertices (see frozen()): refreshes of their best edge, and
   // inexact candidates not owned that were under the cut but not collapsed.
   uint64_t frozen_refreshes() const { return frozen_refreshes_; }

@@ -133,9 +133,7 @@ SimplifyResult simplify_in_core(std::vector<Point>&& points, std::vector<Triangl
       run_epochs(decimator, st.target_faces, options.epochs, options.on_round);
   st.rounds = run.rounds;
   st.epochs = run.epochs;
-  st.refreshes = decimator.refreshes();
-  st.charges = decimator.charges();
-  st.validity_checks = decimator.validity_checks();
+  st.work = decimator.work();
   st.seconds_rounds = seconds_since(t1);
 
   const auto t2 = std::chrono::steady_clock::now();

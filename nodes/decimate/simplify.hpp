@@ -40,10 +40,7 @@ struct SimplifyStats {
   uint64_t output_vertices = 0, output_faces = 0;
   uint64_t rounds = 0;
   uint64_t epochs = 0;
-  // The decimator's work (PatchDecimator::refreshes / charges / validity_checks): what
-  // a round costs is mostly these, so they tell a schedule's cost apart from the
-  // machine's speed.
-  uint64_t refreshes = 0, charges = 0, validity_checks = 0;
+  DecimatorWork work;
   double seconds_setup = 0, seconds_rounds = 0, seconds_extract = 0;
 };
 

@@ -1615,9 +1615,7 @@ struct Runner {
         d.prepare_owned_summary_round();
         // Without rounds the summary's prepare is the first.
         if (plan.cuts.empty()) stats.first_round_refreshes += d.refreshes();
-        stats.patch_refreshes += d.refreshes();
-        stats.patch_charges += d.charges();
-        stats.patch_validity_checks += d.validity_checks();
+        stats.patch_work += d.work();
         stats.frozen_refreshes += d.frozen_refreshes();
         stats.frozen_collapses += d.frozen_collapses();
         summary = d.summarize();
@@ -2006,6 +2004,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
       });
       st.rounds += run.rounds;
       st.epochs += run.epochs;
+      st.in_core_work = d.work();
       begin("finish extract");
       PatchOutput out = d.extract();
       copy_mesh(out, result.points, result.triangles);

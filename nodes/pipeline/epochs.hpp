@@ -143,12 +143,11 @@ struct OocStats {
   // best-edge refreshes the patches' first prepare still ran (the first round's, or the
   // summary's in a pass without rounds).
   uint64_t carried_bests = 0, in_core_carried_bests = 0, first_round_refreshes = 0;
-  // Patch work: best-edge refreshes run, and those skipped at frozen (untrusted, not
-  // owned) vertices with the collapses skipped there (PatchDecimator::frozen_refreshes).
-  uint64_t patch_refreshes = 0, frozen_refreshes = 0, frozen_collapses = 0;
-  // The patches' deviation charges and validity checks (PatchDecimator::charges /
-  // validity_checks), the refreshes' work.
-  uint64_t patch_charges = 0, patch_validity_checks = 0;
+  // Work skipped in the patches: best-edge refreshes at frozen (untrusted, not owned)
+  // vertices and the collapses skipped there (PatchDecimator::frozen_refreshes).
+  uint64_t frozen_refreshes = 0, frozen_collapses = 0;
+  // The decimator's work in the patches (redos included) and in the in-core finish.
+  DecimatorWork patch_work, in_core_work;
   // Where the out-of-core patch work goes (redos included): wall and process CPU seconds
   // per phase of run_part, in this order: gather (plan, read, filter), build (BFS halo,
   // PatchInput), setup (PatchDecimator's constructor), first_round (the epoch's first

@@ -12,6 +12,7 @@
 #include "engine/reencode.hpp"
 #include "engine/report.hpp"
 #include "io/indexed_mesh.hpp"
+#include "nodes/decimate/report_fields.hpp"
 #include "nodes/pipeline/epochs.hpp"
 #include "util/error.hpp"
 
@@ -112,11 +113,7 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     report["epochs"] = st.epochs;
     report["out_of_core_epochs"] = st.ooc_epochs;
     report["rounds"] = st.rounds;
-    // The schedule the epochs ran (the in-core report names it too).
-    const nodes::EpochOptions& schedule = command.options.simplify.epochs;
-    report["epoch_rounds"] = schedule.epoch_rounds;
-    report["cut_rise"] = schedule.cut_rise;
-    report["flat_cut_rise"] = schedule.flat_cut_rise;
+    nodes::report_schedule(report, command.options.simplify.epochs);
     report["halo_redos"] = st.halo_redos;
     report["gather_reads"] = st.gather_reads;
     report["patch_splits"] = st.patch_splits;
@@ -135,9 +132,8 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     report["carried_bests"] = st.carried_bests;
     report["in_core_carried_bests"] = st.in_core_carried_bests;
     report["first_round_refreshes"] = st.first_round_refreshes;
-    report["patch_refreshes"] = st.patch_refreshes;
-    report["patch_charges"] = st.patch_charges;
-    report["patch_validity_checks"] = st.patch_validity_checks;
+    nodes::report_work(report, "patch_", st.patch_work);
+    nodes::report_work(report, "in_core_", st.in_core_work);
     report["frozen_refreshes"] = st.frozen_refreshes;
     report["frozen_collapses"] = st.frozen_collapses;
     for (size_t i = 0; i < OocStats::kPhases; ++i)

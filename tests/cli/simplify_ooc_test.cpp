@@ -168,12 +168,17 @@ TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
          " --target-faces 301 --in-core --quiet --deviation-weight 0");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "charged.ply").string() + " --target-faces 301 --in-core --quiet");
   EXPECT_NE(file_bytes(dir / "plain.ply"), file_bytes(dir / "charged.ply"));
-  // The reports count the charges: none in plain QEM, in core or in the patches.
-  const auto plain = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 1 --deviation-weight 0");
+  // The reports count the charges: none in plain QEM, in core, in the patches or in the
+  // in-core finish (which starts below 6000 faces here).
+  const auto plain = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 6000 --deviation-weight 0");
   EXPECT_EQ(plain["patch_charges"].get<uint64_t>(), 0u);
   EXPECT_GT(plain["patch_validity_checks"].get<uint64_t>(), 0u);
-  const auto charged = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 1");
+  EXPECT_EQ(plain["in_core_charges"].get<uint64_t>(), 0u);
+  EXPECT_GT(plain["in_core_validity_checks"].get<uint64_t>(), 0u);
+  const auto charged = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 6000");
   EXPECT_GT(charged["patch_charges"].get<uint64_t>(), 0u);
+  EXPECT_GT(charged["in_core_charges"].get<uint64_t>(), 0u);
+  EXPECT_GT(charged["in_core_refreshes"].get<uint64_t>(), 0u);
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "plain.ply").string() +
          " --target-faces 301 --in-core --quiet --deviation-weight 0 --report " + (dir / "plain.json").string());
   const auto in_core = read_json(dir / "plain.json");
