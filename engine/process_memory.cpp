@@ -12,6 +12,8 @@
 #include <fstream>
 #include <string>
 
+#include "util/memory.hpp"
+
 namespace qemflow::engine {
 
 namespace {
@@ -67,15 +69,14 @@ void trim_allocator() { malloc_trim(0); }
 
 const void* release_pages(const void* begin, const void* end) {
   static const uintptr_t page = uintptr_t(sysconf(_SC_PAGESIZE));
-  const uintptr_t from = (uintptr_t(begin) + page - 1) & ~(page - 1), to = uintptr_t(end) & ~(page - 1);
+  const auto [from, to] = whole_pages(begin, end, page);
   if (to <= from) return begin;
   madvise(reinterpret_cast<void*>(from), to - from, MADV_DONTNEED);  // advice: a failure only keeps the pages
   return reinterpret_cast<const void*>(to);
 }
 
 void advise_huge_pages(const void* begin, const void* end) {
-  constexpr uintptr_t huge = 2 << 20;
-  const uintptr_t from = (uintptr_t(begin) + huge - 1) & ~(huge - 1), to = uintptr_t(end) & ~(huge - 1);
+  const auto [from, to] = whole_pages(begin, end, 2 << 20);
   if (to <= from) return;
   madvise(reinterpret_cast<void*>(from), to - from, MADV_HUGEPAGE);  // advice: a failure keeps small pages
 }

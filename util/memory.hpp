@@ -2,6 +2,7 @@
 // Giving a vector's storage back before the vector goes out of scope: the governor's
 // lease for an array is returned right after it, so the memory must go with it.
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <new>
 #include <utility>
@@ -40,5 +41,12 @@ struct UninitializedAllocator : std::allocator<T> {
 using Bytes = std::vector<std::byte, UninitializedAllocator<std::byte>>;
 template <class T>
 using UninitializedVector = std::vector<T, UninitializedAllocator<T>>;
+
+// The pages of `page` bytes (a power of two) that lie wholly inside [begin, end): the
+// range madvise may be given without touching a neighbour's bytes. Empty (first >=
+// second) when there is none.
+inline std::pair<uintptr_t, uintptr_t> whole_pages(const void* begin, const void* end, uintptr_t page) {
+  return {(reinterpret_cast<uintptr_t>(begin) + page - 1) & ~(page - 1), reinterpret_cast<uintptr_t>(end) & ~(page - 1)};
+}
 
 }  // namespace qemflow

@@ -49,9 +49,7 @@ void parallel_assign(UninitializedVector<T>& v, size_t n, const T& value) {
 inline void parallel_populate(void* begin, void* end) {
 #ifdef MADV_POPULATE_WRITE
   constexpr uintptr_t kSlice = uintptr_t(4) << 20;  // two 2 MiB pages
-  constexpr uintptr_t kPage = 4096;
-  const uintptr_t lo = (reinterpret_cast<uintptr_t>(begin) + kPage - 1) & ~(kPage - 1);
-  const uintptr_t hi = reinterpret_cast<uintptr_t>(end) & ~(kPage - 1);
+  const auto [lo, hi] = whole_pages(begin, end, 4096);
   if (hi <= lo || hi - lo < kSlice) return;  // small: not worth the tasks
   const uintptr_t first = (lo + kSlice - 1) & ~(kSlice - 1);  // slice boundaries aligned
   const size_t slices = (hi - first + kSlice - 1) / kSlice + 1;
