@@ -1051,20 +1051,26 @@ Gathered load_state(Job& job, ScratchStore& scratch, const MeshState& state) {
   return g;
 }
 
-// Sizes a PatchInput's per-vertex arrays from the records (quadrics and locks when the
-// state has them, carried bests when they are valid) to `n` vertices, for set_vertex.
-// Fresh arrays are faulted in on every thread (parallel_resize).
-void resize_vertices(PatchInput& in, size_t n, bool quadrics, bool bests) {
-  parallel_resize(in.vertex_gids, n);
-  parallel_resize(in.positions, n);
+// Calls `f` on each of a PatchInput's per-vertex arrays that set_vertex fills from the
+// records: quadrics and locks when the state has them, carried bests when they are valid.
+template <class F>
+void for_vertex_arrays(PatchInput& in, bool quadrics, bool bests, F&& f) {
+  f(in.vertex_gids);
+  f(in.positions);
   if (quadrics) {
-    parallel_resize(in.quadrics, n);
-    parallel_resize(in.locked, n);
+    f(in.quadrics);
+    f(in.locked);
   }
   if (bests) {
-    parallel_resize(in.best_gids, n);
-    parallel_resize(in.best_costs, n);
+    f(in.best_gids);
+    f(in.best_costs);
   }
+}
+
+// Sizes those arrays to `n` vertices, for set_vertex. Fresh arrays are faulted in on
+// every thread (parallel_resize).
+void resize_vertices(PatchInput& in, size_t n, bool quadrics, bool bests) {
+  for_vertex_arrays(in, quadrics, bests, [n](auto& values) { parallel_resize(values, n); });
 }
 
 // Writes a vertex record's fields as vertex `i` of a PatchInput sized by resize_vertices
@@ -1380,16 +1386,7 @@ PatchInput build_whole_patch(Gathered&& g, bool carry_bests) {
   const bool given_quadrics = nv > 0 && g.vertices[0].has_quadric;
   const bool bests = given_quadrics && carry_bests;
   const uint64_t fuzz = fuzz_salt();
-  in.vertex_gids.reserve(nv);
-  in.positions.reserve(nv);
-  if (given_quadrics) {
-    in.locked.reserve(nv);
-    in.quadrics.reserve(nv);
-  }
-  if (bests) {
-    in.best_gids.reserve(nv);
-    in.best_costs.reserve(nv);
-  }
+  for_vertex_arrays(in, given_quadrics, bests, [nv](auto& values) { values.reserve(nv); });
   const void* released = g.vertices.data();
   for (size_t begin = 0; begin < nv; begin += kVertexBlock) {
     const size_t end = std::min(nv, begin + kVertexBlock);
