@@ -79,6 +79,14 @@ void report_scratch(nlohmann::json& report, ScratchStore& scratch) {
     (c.raw ? any_raw : any_zstd) = true;
     choices.push_back({{"stage", c.stage}, {"codec", c.raw ? "raw" : "zstd"}, {"raw_bound_bytes", c.raw_bytes},
                        {"free_bytes", c.free_bytes}});
+    // A raw stage sized by an estimate (ScratchStore::choose_codec): its raw bytes'
+    // cap, and whether its frames went zstd past it (then the stage is mixed itself).
+    if (c.raw_estimate) choices.back()["raw_estimate_bytes"] = c.raw_estimate;
+    if (c.raw_cap) {
+      choices.back()["raw_cap_bytes"] = c.raw_cap;
+      choices.back()["past_cap"] = c.past_cap;
+      any_zstd = any_zstd || c.past_cap;
+    }
   }
   report["scratch_codec"] = any_raw && any_zstd ? "mixed" : any_raw ? "raw" : "zstd";
   report["scratch_codec_choices"] = choices;

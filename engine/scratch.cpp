@@ -418,22 +418,50 @@ uint64_t ScratchStore::free_bytes() {
 }
 
 bool ScratchStore::choose_codec(uint64_t raw_bytes, const std::string& stage) {
-  if (choice_ != ScratchCodec::automatic) return codec_.raw;
+  return choose_codec(raw_bytes, raw_bytes, 0, stage);  // the estimate is the bound: never capped
+}
+
+bool ScratchStore::choose_codec(uint64_t raw_bound, uint64_t raw_estimate, uint64_t zstd_room,
+                                const std::string& stage) {
+  if (choice_ != ScratchCodec::automatic) return codec().raw;
   DiskClaims& claims = disk_claims();
   std::lock_guard claims_lock(claims.mutex);
   const uint64_t free_now = free_bytes_beside(device_ ? claimed_by_others(claims, this, *device_) : 0);
-  const bool raw = free_now >= raw_bytes;
-  record_choice({stage, raw, raw_bytes, free_now});
-  // A raw stage may write its bound on top of what is on disk.
+  const uint64_t capped_need = raw_estimate > UINT64_MAX - zstd_room ? UINT64_MAX : raw_estimate + zstd_room;
+  const bool uncapped = free_now >= raw_bound;
+  const bool raw = uncapped || free_now >= capped_need;
+  const uint64_t cap = uncapped ? 0 : raw_estimate;
+  record_choice({stage, raw, uncapped || !raw ? raw_bound : capped_need, free_now,
+                 raw_estimate == raw_bound ? 0 : raw_estimate, raw ? cap : 0});
+  raw_left_.store(raw && cap ? cap : UINT64_MAX, std::memory_order_relaxed);
+  // A raw stage may write its bound (or its cap and the zstd room) on top of what is on disk.
   if (raw && device_) {
     DiskClaim& claim = claims.stores.at(this);
-    claim.bytes = std::max(claim.bytes, bytes_on_disk() + raw_bytes);
+    claim.bytes = std::max(claim.bytes, bytes_on_disk() + (uncapped ? raw_bound : capped_need));
   }
   return raw;
 }
 
+FrameCodec ScratchStore::frame_codec(uint64_t raw_frame_bytes) {
+  if (!codec_raw_.load(std::memory_order_relaxed)) return FrameCodec::zstd();
+  uint64_t left = raw_left_.load(std::memory_order_relaxed);
+  while (left != UINT64_MAX) {
+    if (left < raw_frame_bytes) {
+      // Past the cap: this frame and the stage's rest go zstd (frames already taken
+      // raw stay so; they are within the cap).
+      codec_raw_.store(false, std::memory_order_relaxed);
+      std::lock_guard lock(mutex_);
+      if (!choices_.empty()) choices_.back().past_cap = true;
+      return FrameCodec::zstd();
+    }
+    if (raw_left_.compare_exchange_weak(left, left - raw_frame_bytes, std::memory_order_relaxed)) break;
+  }
+  return FrameCodec::uncompressed();
+}
+
 void ScratchStore::record_choice(CodecChoice choice) {
-  codec_ = choice.raw ? FrameCodec::uncompressed() : FrameCodec::zstd();
+  codec_raw_.store(choice.raw, std::memory_order_relaxed);
+  raw_left_.store(UINT64_MAX, std::memory_order_relaxed);
   std::lock_guard lock(mutex_);
   choices_.push_back(std::move(choice));
 }

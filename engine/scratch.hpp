@@ -30,6 +30,7 @@
 #include <sys/types.h>
 
 #include <array>
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <deque>
@@ -156,8 +157,8 @@ struct FrameRef {
 
 // What a ScratchStore encodes its frames with. automatic: raw when the directory has
 // room for the raw bytes (expected_raw_bytes), else zstd when it has room for
-// expected_bytes, and again at each choose_codec() (a stage whose raw bytes are bounded
-// then); raw / zstd: forced (each still checked for its own space).
+// expected_bytes, and again at each choose_codec() (a stage whose raw bytes are bounded,
+// or estimated with a cap, then); raw / zstd: forced (each still checked for its own space).
 enum class ScratchCodec { automatic, raw, zstd };
 // "auto", "raw", "zstd" (nullopt for anything else).
 std::optional<ScratchCodec> parse_scratch_codec(const std::string& text);
@@ -171,8 +172,11 @@ class ScratchStore {
   ScratchStore(const std::filesystem::path& parent, uint64_t expected_bytes, uint64_t expected_raw_bytes,
                ScratchCodec choice, std::optional<uint64_t> assumed_free = std::nullopt);
   // The codec chosen for this store's frames (zstd -1 with the two-argument constructor).
-  // Read by compute threads as they encode: it changes only in choose_codec().
-  FrameCodec codec() const { return codec_; }
+  // Read by compute threads as they encode: it changes in choose_codec(), and in
+  // frame_codec() when a capped raw stage passes its cap.
+  FrameCodec codec() const {
+    return codec_raw_.load(std::memory_order_relaxed) ? FrameCodec::uncompressed() : FrameCodec::zstd();
+  }
   // Automatic stores: the frames written from now on are raw if the disk has
   // `raw_bytes` free now (a bound on what the stage about to start writes raw, on top
   // of what is on disk), else zstd; forced ones keep their codec. Call it only where no
@@ -181,6 +185,19 @@ class ScratchStore {
   // of the other codec read as before. `stage` names the choice in the report.
   // Returns whether the frames will be raw.
   bool choose_codec(uint64_t raw_bytes, const std::string& stage);
+  // The same for a stage whose raw bytes are bounded loosely (`raw_bound`, the worst
+  // case) but estimated closely (`raw_estimate`): raw, uncapped, when the bound fits;
+  // else raw when `raw_estimate + zstd_room` fits (zstd_room: what the stage may then
+  // still write in zstd), with the stage's raw bytes capped at raw_estimate: frames
+  // taken with frame_codec() go raw while they fit under the cap and zstd from the
+  // first that does not, to the stage's end (the report's choice then says
+  // "past_cap"). So such a stage writes at most raw_estimate raw bytes beside its zstd
+  // ones, whatever its real size. Same calling rule as above.
+  bool choose_codec(uint64_t raw_bound, uint64_t raw_estimate, uint64_t zstd_room, const std::string& stage);
+  // The codec to encode a frame of `raw_frame_bytes` (the whole frame, raw) with:
+  // codec(), but a capped raw stage (above) turns zstd for good once its frames would
+  // pass the cap. Thread-safe (compute threads, each frame as it is encoded).
+  FrameCodec frame_codec(uint64_t raw_frame_bytes);
   // Free bytes of the scratch disk now (statvfs, or assumed_free less what is on disk);
   // UINT64_MAX when unknown. On a real disk, less what the process's other stores there
   // still expect to write: each store claims its expected bytes when it is made (and a
@@ -193,6 +210,9 @@ class ScratchStore {
     std::string stage;
     bool raw = false;
     uint64_t raw_bytes = 0, free_bytes = 0;
+    uint64_t raw_estimate = 0;  // an estimated stage's estimate (0: a bound only)
+    uint64_t raw_cap = 0;       // a capped raw stage's cap (0: none)
+    bool past_cap = false;  // its frames went zstd past the cap
   };
   std::vector<CodecChoice> codec_choices() {
     std::lock_guard lock(mutex_);
@@ -246,7 +266,10 @@ class ScratchStore {
   uint64_t free_bytes_beside(uint64_t others);
 
   std::filesystem::path dir_, parent_;
-  FrameCodec codec_;
+  // The codec (raw, or zstd -1) and a capped raw stage's raw bytes left (UINT64_MAX:
+  // uncapped): read by compute threads as they encode, set by the choices.
+  std::atomic<bool> codec_raw_{false};
+  std::atomic<uint64_t> raw_left_{UINT64_MAX};
   ScratchCodec choice_ = ScratchCodec::zstd;
   std::optional<uint64_t> assumed_free_;  // an assumed disk is the store's own: no claims
   std::optional<dev_t> device_;           // the scratch disk, for the claims

@@ -411,10 +411,14 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
       job.error_handler(), encoded->size());
 }
 
+// A raw frame's bytes: its blob and the envelope (header, checksum).
+uint64_t raw_frame_bytes(uint64_t blob_size) { return engine::frame_header_bytes + blob_size + sizeof(uint64_t); }
+
 void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta, const Bytes& blob,
                  Lease carried, const char* stage) {
+  const engine::FrameCodec codec = scratch.frame_codec(raw_frame_bytes(blob.size()));
   write_encoded_chunk(job, scratch, state, meta, blob.size(),
-                      std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size(), scratch.codec())),
+                      std::make_shared<Bytes>(engine::encode_frame(meta.owner, 1, blob.data(), blob.size(), codec)),
                       std::move(carried), stage);
 }
 
@@ -443,8 +447,6 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
   // with the chunk's number (per thread: 4 bytes per output vertex).
   tbb::enumerable_thread_specific<std::vector<uint32_t>> stamps(
       [&] { return std::vector<uint32_t>(out.positions.size(), std::numeric_limits<uint32_t>::max()); });
-  // Raw frames are made in place: the blob is built inside the frame (no copy).
-  const bool raw = scratch.codec().raw;
   std::vector<Made> made;
   for (size_t batch = 0; batch < chunks; batch += kBatch) {
     const size_t n_batch = std::min(kBatch, chunks - batch);
@@ -465,7 +467,9 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
             }
         const uint64_t nf = n, nv = locals.size();
         const size_t size = blob_bytes(nf, nv);
-        Bytes frame(raw ? engine::frame_header_bytes + size + sizeof(uint64_t) : size);
+        // Raw frames are made in place: the blob is built inside the frame (no copy).
+        const bool raw = scratch.frame_codec(raw_frame_bytes(size)).raw;
+        Bytes frame(raw ? raw_frame_bytes(size) : size);
         std::byte* blob = frame.data() + (raw ? engine::frame_header_bytes : 0);
         std::memcpy(blob, &nf, 8);
         std::memcpy(blob + 8, &nv, 8);
@@ -514,7 +518,7 @@ void write_output_as_chunks(Job& job, ScratchStore& scratch, MeshState& state, u
           std::memcpy(blob + size, envelope.trailer.data(), envelope.trailer.size());
           made[i].encoded = std::make_shared<Bytes>(std::move(frame));
         } else {
-          made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob, size, scratch.codec()));
+          made[i].encoded = std::make_shared<Bytes>(engine::encode_frame(owner, 1, blob, size, engine::FrameCodec::zstd()));
         }
       });
     });
@@ -1782,6 +1786,35 @@ uint64_t raw_state_bytes_bound(uint64_t faces) {
   return faces * (kChunkEnvelope + sizeof(FaceRecord) + 3 * sizeof(VertexRecord));
 }
 
+namespace {
+
+// A state's raw bytes as they would be on disk: its blobs (exact) and a frame's
+// envelope a chunk. Known when a pass starts, and the estimate auto sizes the pass's
+// output by (ScratchStore::choose_codec's cap): that output is the patches' owned
+// faces, fewer than the state's, chunked alike (chunk_faces a chunk, in Morton order),
+// so it is typically smaller, but not surely (a patch's owned faces may fall into more,
+// smaller chunks, each with its own copies of the vertices on its border).
+uint64_t raw_state_bytes(const MeshState& state) {
+  return state.blob_bytes_total + state.chunks.size() * (engine::frame_header_bytes + sizeof(uint64_t));
+}
+
+// The first state's raw bytes, estimated from the counts (the conversion writes it
+// before any state is known): each face, and each vertex's record with a quarter more
+// for the copies in the chunks that share it, and a chunk's envelope (16 + 56) for
+// every chunk_faces faces; never above the bound. Measured (raw runs): the 1M demo's
+// first state 118 bytes a face (0.57 records, 1.15 a vertex: chunks of 1,953 faces;
+// estimate 125), the 20M proxy's 116 (chunks of 8,192); later states 117 a face. A
+// shuffled input's chunks share few corners (a 300k blob: 428 bytes a face): the
+// estimate is then far short, and the stage's cap turns it zstd.
+uint64_t first_state_raw_estimate(uint64_t faces, uint64_t vertices, uint64_t chunk_faces) {
+  constexpr uint64_t kChunkEnvelope = 16 + engine::frame_header_bytes + sizeof(uint64_t);
+  const uint64_t estimate = faces * sizeof(FaceRecord) + vertices * sizeof(VertexRecord) * 5 / 4 +
+                            (faces / std::max<uint64_t>(1, chunk_faces) + 1) * kChunkEnvelope;
+  return std::min(estimate, raw_state_bytes_bound(faces));
+}
+
+}  // namespace
+
 // On disk at once: the load's files (while it runs), then its blocks and vertex
 // windows beside the first state (the conversion removes them after), then two states
 // (the pass's input and its output; the input goes once the pass is done).
@@ -1851,13 +1884,23 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
 
   auto state = std::make_unique<MeshState>();
   state->file = scratch.create_file("state-0");
-  scratch.choose_codec(raw_state_bytes_bound(mesh.kept_faces()), "convert");
   // At least ~32 chunks per patch: a gather reads a chunk's runs by their boxes, so
   // chunks much larger than a patch's halo band make small patches
   // (the 1M-face demo's 60K) read several times their own state. Any chunking gives
   // the same patches.
   const uint64_t chunk_faces = std::clamp<uint64_t>(mesh.kept_faces() / std::max<uint32_t>(1, partition.clusters) / 32,
                                                     std::min<uint64_t>(1024, options.chunk_faces), options.chunk_faces);
+  // Raw when the bound fits; else when the estimate fits twice over: raw up to the
+  // estimate (the cap), and room for the stage again in zstd should it pass the cap
+  // (zstd -1 writes state chunks in at most their raw bytes: 0.14 of them in the
+  // conversion, 0.61 in the epochs, on the 1M demo). The states shrink epoch by epoch:
+  // a disk too small for the first may have room for a later one (and the state on
+  // disk beside it is counted).
+  auto choose_state_codec = [&](uint64_t faces, uint64_t raw_estimate, const std::string& stage) {
+    scratch.choose_codec(raw_state_bytes_bound(faces), raw_estimate, raw_estimate, stage);
+  };
+  choose_state_codec(mesh.kept_faces(), first_state_raw_estimate(mesh.kept_faces(), referenced_vertices, chunk_faces),
+                     "convert");
   job.progress_span(kLoadShare + 0.01, kEpochsFrom);
   convert_blocks(job, scratch, mesh, partition, chunk_faces, *state);
   if (order_fuzz_seed()) shuffle(state->chunks);
@@ -1941,9 +1984,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
         }
       }
       set_pass_rings(plan.cuts.size(), first);
-      // The state shrinks epoch by epoch: a disk too small for a raw copy of the first
-      // may have room for a later one (and the first, on disk beside it, is counted).
-      scratch.choose_codec(raw_state_bytes_bound(state->faces), "epoch " + std::to_string(st.ooc_epochs + 1));
+      choose_state_codec(state->faces, raw_state_bytes(*state), "epoch " + std::to_string(st.ooc_epochs + 1));
       auto next = new_state();
       summary = runner.pass(*state, next.get(), plan, params, nullptr, 0);
       st.rounds += plan.cuts.size();

@@ -260,8 +260,12 @@ inline uint64_t in_core_finish_bytes(uint64_t faces, uint64_t vertices) {
 // cancelled); nothing is left in scratch and no output exists after a failure.
 // Raw scratch bytes, bounded from the record sizes (epochs.cpp): a state of `faces`
 // faces, and everything on disk at once in a run of an input of `faces` triangles and
-// `vertices` vertices. --scratch-codec auto goes raw for a stage only when the disk
-// has room for that stage's bound. `small_load_frames`: LoadedMesh::small_spill_frames.
+// `vertices` vertices. --scratch-codec auto goes raw for a load stage only when the
+// disk has room for that stage's bound; for a state stage (the conversion, an epoch)
+// when it has room for the bound, or for twice an estimate of the state's raw bytes
+// (from the counts; the exact bytes of the state the pass reads), the stage's raw
+// bytes then capped at the estimate (ScratchStore::choose_codec): the bound is ~4.4x
+// a welded mesh's states. `small_load_frames`: LoadedMesh::small_spill_frames.
 uint64_t raw_state_bytes_bound(uint64_t faces);
 uint64_t raw_scratch_peak_bound(uint64_t faces, uint64_t vertices, bool small_load_frames);
 
@@ -276,7 +280,8 @@ struct OocJob {
   // --scratch-codec. automatic by default: raw frames (about a sixth less CPU than
   // zstd -1) for each stage whose raw bytes, bounded from the counts
   // (raw_state_bytes_bound, engine::raw_load_scratch_bound), fit the disk's free space
-  // then; zstd (DESIGN §2) for the others.
+  // then, or for a state stage twice their estimate (raw up to it, zstd past it);
+  // zstd (DESIGN §2) for the others.
   engine::ScratchCodec scratch_codec = engine::ScratchCodec::automatic;
   // Tests: the scratch disk's free bytes at the start, instead of statvfs
   // (QEMFLOW_SCRATCH_FREE for the CLI; ScratchStore's assumed_free).

@@ -414,6 +414,45 @@ TEST(SimplifyOoc, AutoGoesZstdWhereRawWouldNotFit) {
       }
 }
 
+// A state's raw bytes are far under their bound (520 bytes a face; ~120 measured on a
+// welded blob), so auto sizes a state stage by an estimate (the conversion's from the
+// counts, an epoch's from the exact bytes of the state it reads) and goes raw with room
+// for twice it, its raw bytes capped at it: past the cap the stage goes on in zstd.
+// Session 20's 200M run went zstd for the conversion and epochs 1-5 by the bound
+// (104 GB against 63-77 GB free). Here a disk with room for the load's bound but not
+// for a state's: the welded blob's states go raw within their caps; the shuffled one's
+// conversion passes its cap (its chunks share few corners: 3.4x the estimate) and goes
+// on in zstd. Either way the output is zstd's and the peak within the disk.
+TEST(SimplifyOoc, AutoSizesRawStatesByAnEstimateAndCapsThem) {
+  TempDir dir;
+  const uint64_t free = 120'000'000;
+  for (const bool shuffled : {false, true}) {
+    SCOPED_TRACE(shuffled ? "shuffled" : "welded blob");
+    const auto mesh = generate(dir, shuffled ? "--faces 300000 --shuffle 1" : "--faces 300000");
+    const std::string args = "--ratio 0.01 --mem-budget 48M";
+    simplify_with_report(dir, mesh, args + " --scratch-codec zstd");
+    const auto expected = file_bytes(dir / "out.ply");
+    const auto r = simplify_with_report(dir, mesh, args, 0, "QEMFLOW_SCRATCH_FREE=" + std::to_string(free) + " ");
+    EXPECT_TRUE(file_bytes(dir / "out.ply") == expected);
+    EXPECT_LE(r["scratch_peak_bytes"].get<uint64_t>(), free);
+    std::map<std::string, nlohmann::json> by_stage;
+    for (const auto& c : r["scratch_codec_choices"]) {
+      by_stage[c["stage"].get<std::string>()] = c;
+      if (c["codec"] == "raw") EXPECT_LE(c["raw_bound_bytes"].get<uint64_t>(), c["free_bytes"].get<uint64_t>());
+      if (c.contains("raw_cap_bytes"))
+        EXPECT_EQ(c["raw_bound_bytes"].get<uint64_t>(), 2 * c["raw_cap_bytes"].get<uint64_t>());
+    }
+    const auto& convert = by_stage["convert"];
+    EXPECT_EQ(convert["codec"], "raw");
+    ASSERT_TRUE(convert.contains("raw_cap_bytes"));  // the bound (156 MB) did not fit
+    EXPECT_EQ(convert["past_cap"].get<bool>(), shuffled);
+    if (!shuffled) {
+      EXPECT_EQ(by_stage["epoch 1"]["codec"], "raw");
+      EXPECT_TRUE(by_stage["epoch 1"].contains("raw_cap_bytes"));
+    }
+  }
+}
+
 TEST(SimplifyOoc, MeshThatFitsTheFinishSkipsThePartition) {
   // 120k faces need ~20 MB in the finish but would get several patches from the budget
   // rule (clusters_for); under a 64M budget the run goes in core at once

@@ -242,6 +242,45 @@ TEST(ScratchStore, AutomaticChoosesEachStageAgainstTheSpaceLeft) {
   EXPECT_THROW(ScratchStore(tmp.path(), 20000, 40000, ScratchCodec::automatic, 10000), Error);
 }
 
+// A stage whose raw bytes are estimated, not bounded (the states: epochs.cpp): raw with
+// room for the estimate and the zstd room, its frames raw up to the estimate (the cap)
+// and zstd from the first frame past it to the stage's end; uncapped when the bound
+// fits; zstd when neither does. The next choice starts afresh.
+TEST(ScratchStore, AnEstimatedStageGoesRawUpToItsCapThenZstd) {
+  TempDir tmp;
+  ScratchStore s(tmp.path(), 1000, 1000, ScratchCodec::automatic, 10000);
+  // The bound (20000) does not fit, the estimate and its room (2 x 3000) do.
+  EXPECT_TRUE(s.choose_codec(20000, 3000, 3000, "capped"));
+  EXPECT_TRUE(s.frame_codec(2000).raw);
+  EXPECT_TRUE(s.frame_codec(1000).raw);  // exactly the cap
+  EXPECT_FALSE(s.frame_codec(1).raw);    // past it: zstd
+  EXPECT_FALSE(s.codec().raw);
+  EXPECT_FALSE(s.frame_codec(1).raw);  // and for the rest of the stage
+  auto choices = s.codec_choices();
+  ASSERT_EQ(choices.size(), 2u);
+  EXPECT_TRUE(choices[1].raw);
+  EXPECT_EQ(choices[1].raw_bytes, 6000u);  // what was checked: the estimate and the room
+  EXPECT_EQ(choices[1].raw_cap, 3000u);
+  EXPECT_TRUE(choices[1].past_cap);
+  // The bound fits: uncapped.
+  EXPECT_TRUE(s.choose_codec(5000, 3000, 3000, "uncapped"));
+  EXPECT_TRUE(s.frame_codec(5000).raw);
+  EXPECT_TRUE(s.frame_codec(5000).raw);
+  // Neither fits: zstd, frames too.
+  EXPECT_FALSE(s.choose_codec(20000, 6000, 6000, "zstd"));
+  EXPECT_FALSE(s.frame_codec(1).raw);
+  choices = s.codec_choices();
+  ASSERT_EQ(choices.size(), 4u);
+  EXPECT_EQ(choices[2].raw_cap, 0u);
+  EXPECT_FALSE(choices[2].past_cap);
+  EXPECT_FALSE(choices[3].raw);
+  EXPECT_EQ(choices[3].raw_bytes, 20000u);
+  // A forced codec ignores estimates and caps.
+  ScratchStore raw(tmp.path(), 1000, 1000, ScratchCodec::raw, 10000);
+  EXPECT_TRUE(raw.choose_codec(1u << 30, 1u << 30, 1u << 30, "x"));
+  EXPECT_TRUE(raw.frame_codec(1u << 30).raw);
+}
+
 TEST(ScratchStore, FilesAreCompleteOnlyWhenFinalizedAndAllGoAtTheEnd) {
   TempDir tmp;
   std::filesystem::path dir;
