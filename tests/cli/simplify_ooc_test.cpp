@@ -438,9 +438,12 @@ TEST(SimplifyOoc, AutoSizesRawStatesByAnEstimateAndCapsThem) {
     std::map<std::string, nlohmann::json> by_stage;
     for (const auto& c : r["scratch_codec_choices"]) {
       by_stage[c["stage"].get<std::string>()] = c;
-      if (c["codec"] == "raw") EXPECT_LE(c["raw_bound_bytes"].get<uint64_t>(), c["free_bytes"].get<uint64_t>());
-      if (c.contains("raw_cap_bytes"))
+      if (c["codec"] == "raw") {
+        EXPECT_LE(c["raw_bound_bytes"].get<uint64_t>(), c["free_bytes"].get<uint64_t>());
+      }
+      if (c.contains("raw_cap_bytes")) {
         EXPECT_EQ(c["raw_bound_bytes"].get<uint64_t>(), 2 * c["raw_cap_bytes"].get<uint64_t>());
+      }
     }
     const auto& convert = by_stage["convert"];
     EXPECT_EQ(convert["codec"], "raw");
