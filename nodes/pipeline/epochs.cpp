@@ -327,37 +327,6 @@ Bytes blob_with_header(uint64_t nf, uint64_t nv) {
   return blob;
 }
 
-// Builds a chunk blob from faces and the (deduplicated) vertex records they use.
-Bytes make_blob(const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
-  const uint64_t nf = faces.size(), nv = vertices.size();
-  Bytes blob = blob_with_header(nf, nv);
-  if (nf) std::memcpy(blob.data() + 16, faces.data(), nf * sizeof(FaceRecord));
-  if (nv) std::memcpy(blob.data() + 16 + nf * sizeof(FaceRecord), vertices.data(), nv * sizeof(VertexRecord));
-  return blob;
-}
-
-ChunkMeta meta_of(uint32_t owner, const std::vector<FaceRecord>& faces, const std::vector<VertexRecord>& vertices) {
-  ChunkMeta m;
-  m.owner = owner;
-  m.faces = faces.size();
-  for (const auto& v : vertices) m.box.add(v.position);
-  std::vector<uint64_t> gids(vertices.size());
-  for (size_t i = 0; i < vertices.size(); ++i) gids[i] = vertices[i].gid;
-  auto position = [&](uint64_t gid) -> const Point& {
-    return vertices[size_t(std::lower_bound(gids.begin(), gids.end(), gid) - gids.begin())].position;
-  };
-  if (!faces.empty()) m.first_fid = faces[0].fid;
-  for (size_t j = 0; j < faces.size(); ++j) {
-    const auto& f = faces[j];
-    const Point& p0 = position(f.v[0]);
-    const Point& p1 = position(f.v[1]);
-    const Point& p2 = position(f.v[2]);
-    Box& part = m.parts[ChunkMeta::part_of(j, faces.size())];
-    for (const Point* c : {&p0, &p1, &p2}) part.add(*c);
-  }
-  return m;
-}
-
 // The global mesh between epochs: chunks in one scratch file.
 struct MeshState {
   uint32_t file = 0;
@@ -557,12 +526,92 @@ uint32_t morton(const Point& p, const Box& box) {
 // What a conversion transform holds per face of its frame beside the frame's records,
 // leased with the frame (for_each_frame's out_record_size): the unpacked faces and
 // their sort keys, the results' blobs (a face and, in the worst case of an input in
-// random order, its three corners' vertex records), and the chunk being built (as
-// much again). It was 250: a shuffled 300k at 80M (--clusters 2) then held some 20 MiB
+// random order, its three corners' vertex records), and the chunk being built (counted
+// as much again; its corners' gid keys take 60 bytes a face). It was 250: a shuffled 300k at 80M (--clusters 2) then held some 20 MiB
 // no lease covered and peaked at 89.7-93 MiB in the conversion in 2 of 4 runs at once
 // (each with a thread sampling its RSS every 2 ms); 69.5-76.8 MiB, in the epochs, after.
 constexpr uint32_t kConvertBytesPerFace =
     sizeof(engine::BlockFace) + 24 + 2 * (sizeof(FaceRecord) + 3 * sizeof(VertexRecord));
+
+// A block frame's face in the conversion's order: by owner, then Morton code of its
+// centroid, then id; `index` is its place in the frame.
+struct ConvertKey {
+  uint32_t owner, code;
+  uint64_t fid;
+  uint32_t index;
+  bool operator<(const ConvertKey& o) const { return std::tie(owner, code, fid) < std::tie(o.owner, o.code, o.fid); }
+};
+static_assert(sizeof(ConvertKey) == 24);  // as kConvertBytesPerFace counts it
+
+struct ConvertedChunk {
+  ChunkMeta meta;
+  Bytes blob;
+};
+
+// The chunk of faces[keys[0..n).index] (one owner): its face records in key order and
+// one vertex record per gid in gid order, written straight into the blob, and its meta:
+// the box of the vertex records, each run's box of its faces' corners (their vertex
+// records' positions), the vertex shares. `isolated` counts the faces whose three
+// corners have degree 1.
+ConvertedChunk convert_chunk(const std::vector<engine::BlockFace>& faces, const ConvertKey* keys, size_t n,
+                             uint64_t& isolated) {
+  // The corners sorted by gid alone, with std::sort as the 136-byte vertex records
+  // themselves were before (the same comparisons give the same permutation, for an
+  // eighth of the bytes moved): the first corner of each gid gives its record, and copies
+  // can differ (a corner's position is its unwelded input vertex's: -0.0 welds to 0.0),
+  // so which one comes first shows in the output.
+  struct GidCorner {
+    uint64_t gid;
+    uint64_t corner;  // 3 * (face in the chunk) + k
+  };
+  std::vector<GidCorner> corners(3 * n);
+  for (size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 3; ++k) corners[3 * i + k] = {faces[keys[i].index].vertices[k], 3 * i + k};
+  std::sort(corners.begin(), corners.end(), [](const GidCorner& a, const GidCorner& b) { return a.gid < b.gid; });
+  // Each corner's vertex record (its place among the kept ones), for the runs' boxes.
+  std::vector<uint32_t> vertex_of(3 * n);
+  uint64_t nv = 0;
+  for (size_t j = 0; j < corners.size(); ++j) {
+    if (j > 0 && corners[j].gid != corners[j - 1].gid) ++nv;
+    vertex_of[corners[j].corner] = uint32_t(nv);
+  }
+  if (!corners.empty()) ++nv;
+  ConvertedChunk out;
+  out.blob = blob_with_header(n, nv);
+  std::byte* face_at = out.blob.data() + 16;
+  std::byte* vertex_at = face_at + n * sizeof(FaceRecord);
+  ChunkMeta& m = out.meta;
+  m.owner = n ? keys[0].owner : 0;
+  m.faces = n;
+  for (size_t j = 0; j < corners.size(); ++j) {
+    if (j > 0 && corners[j].gid == corners[j - 1].gid) continue;
+    const engine::BlockFace& f = faces[keys[corners[j].corner / 3].index];
+    const int k = int(corners[j].corner % 3);
+    VertexRecord r;
+    r.gid = f.vertices[k];
+    r.position = f.positions[k];
+    r.degree = f.degree[k];
+    std::memcpy(static_cast<void*>(vertex_at), &r, sizeof r);
+    vertex_at += sizeof r;
+    m.box.add(r.position);
+  }
+  const auto* vertices = reinterpret_cast<const VertexRecord*>(out.blob.data() + 16 + n * sizeof(FaceRecord));
+  for (size_t i = 0; i < n; ++i) {
+    const engine::BlockFace& f = faces[keys[i].index];
+    const FaceRecord record{f.id, f.vertices, keys[i].owner, 0};
+    std::memcpy(static_cast<void*>(face_at + i * sizeof(FaceRecord)), &record, sizeof record);
+    isolated += f.degree[0] == 1 && f.degree[1] == 1 && f.degree[2] == 1;
+    Box& part = m.parts[ChunkMeta::part_of(i, n)];
+    for (int k = 0; k < 3; ++k) {
+      const double share = 1.0 / double(std::max<uint32_t>(1, f.degree[k]));
+      m.vertex_share += share;
+      m.run_share[ChunkMeta::part_of(i, n)] += share;
+      part.add(vertices[vertex_of[3 * i + k]].position);
+    }
+  }
+  if (n) m.first_fid = faces[keys[0].index].id;
+  return out;
+}
 
 // Blocks → state chunks of one owner each, with degrees; per-owner face counts.
 void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& mesh, const Partition& partition,
@@ -570,10 +619,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
   engine::StageTimer timer(job, "convert");
   std::vector<FrameRef> frames;
   for (const auto& b : mesh.blocks) frames.insert(frames.end(), b.begin(), b.end());
-  struct Out {
-    ChunkMeta meta;
-    Bytes blob;
-  };
+  using Out = ConvertedChunk;
   std::mutex outs_mutex;
   std::vector<std::vector<Out>> outs;  // by transform result slot
   uint64_t isolated_faces = 0;         // under outs_mutex
@@ -590,16 +636,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
         Box frame_box;
         for (const auto& f : faces)
           for (const Point& c : f.positions) frame_box.add(c);
-        struct Keyed {
-          uint32_t owner, code;
-          uint64_t fid;
-          uint32_t index;
-          bool operator<(const Keyed& o) const {
-            return std::tie(owner, code, fid) < std::tie(o.owner, o.code, o.fid);
-          }
-        };
-        static_assert(sizeof(Keyed) == 24);  // as kConvertBytesPerFace counts it
-        std::vector<Keyed> by_owner(faces.size());
+        std::vector<ConvertKey> by_owner(faces.size());
         for (size_t i = 0; i < faces.size(); ++i) {
           Point c{};
           for (const Point& corner : faces[i].positions)
@@ -614,37 +651,7 @@ void convert_blocks(Job& job, ScratchStore& scratch, const engine::LoadedMesh& m
           while (last < by_owner.size() && by_owner[last].owner == by_owner[first].owner &&
                  last - first < chunk_faces)
             ++last;
-          // Reserved to size: grown by push_back, the vertex records of a chunk
-          // (3 x 136 bytes a face) held up to twice their size, with the copies they
-          // outgrew left in the heap beside them.
-          std::vector<FaceRecord> fr;
-          std::vector<VertexRecord> vr;
-          fr.reserve(last - first);
-          vr.reserve(3 * (last - first));
-          double vertex_share = 0;
-          std::array<double, ChunkMeta::kParts> run_share{};
-          for (size_t i = first; i < last; ++i) {
-            const auto& f = faces[by_owner[i].index];
-            fr.push_back({f.id, f.vertices, by_owner[i].owner, 0});
-            isolated += f.degree[0] == 1 && f.degree[1] == 1 && f.degree[2] == 1;
-            for (int k = 0; k < 3; ++k) {
-              const double share = 1.0 / double(std::max<uint32_t>(1, f.degree[k]));
-              vertex_share += share;
-              run_share[ChunkMeta::part_of(i - first, last - first)] += share;
-              VertexRecord r;
-              r.gid = f.vertices[k];
-              r.position = f.positions[k];
-              r.degree = f.degree[k];
-              vr.push_back(r);
-            }
-          }
-          std::sort(vr.begin(), vr.end(), [](const VertexRecord& a, const VertexRecord& b) { return a.gid < b.gid; });
-          vr.erase(std::unique(vr.begin(), vr.end(),
-                               [](const VertexRecord& a, const VertexRecord& b) { return a.gid == b.gid; }),
-                   vr.end());
-          result.push_back({meta_of(by_owner[first].owner, fr, vr), make_blob(fr, vr)});
-          result.back().meta.vertex_share = vertex_share;
-          result.back().meta.run_share = run_share;
+          result.push_back(convert_chunk(faces, by_owner.data() + first, last - first, isolated));
           first = last;
         }
         // Hand the results to the sink through the records buffer's slot index.
@@ -979,8 +986,8 @@ void read_runs(Job& job, ScratchStore& scratch, const MeshState& state, const st
           used[c] |= RunMask(1u << k);
         }
         // The asked runs as one blob (replacing the records), each cached run as its own.
-        // Written in place: staging the records in vectors for make_blob first
-        // copied each twice more, with the vectors' growth.
+        // Written in place: staging the records in vectors first copied each twice
+        // more, with the vectors' growth.
         auto blob_of = [&](RunMask mask) {
           uint64_t nf = 0, nv = 0;
           for (size_t k = 0; k < ChunkMeta::kParts; ++k)
