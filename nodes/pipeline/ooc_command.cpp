@@ -72,7 +72,9 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     } drain_before_scratch_goes{job};
     engine::LoadedMesh mesh;
     {
-      engine::StageTimer timer(job, "load");
+      // No stage timer here: the loader times its own stages (load, weld, degrees,
+      // resolve, ...); one around them all, named "load" too, added their sum to the
+      // read pass's seconds (session 20's 200M report: 176 s counted twice).
       job.progress_span(0, kLoadShare);
       engine::LoadOptions load_options;
       load_options.weld = command.weld;
