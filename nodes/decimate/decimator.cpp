@@ -20,7 +20,7 @@
 #include <type_traits>
 #include <utility>
 
-#include "nodes/decimate/locality_order.hpp"
+#include "util/morton.hpp"
 #include "util/parallel_fill.hpp"
 #include "util/parallel_select.hpp"
 #include "util/radix_sort.hpp"
@@ -194,22 +194,49 @@ void neighbor_faces(uint32_t v, const std::vector<uint32_t>& faces,
   }
 }
 
-// values[i] = values[from[i]] (none if empty). The permuted array is sized by
-// parallel_resize: fresh pages in every patch, faulted in on every thread.
-template <class Values>
-void permute(Values& values, const UninitializedVector<uint32_t>& from) {
-  if (values.empty()) return;
-  Values moved;
-  parallel_resize(moved, from.size());
-  parallel_over(from.size(), [&](size_t i) { moved[i] = values[from[i]]; }, 4096);
-  values = std::move(moved);
-}
-
-// Applies the locality order (locality_order.hpp) to a PatchInput given in any order.
+// Renumbers the patch's vertices along a Z-order (Morton) curve of their positions and
+// its faces by their smallest vertex in that order. The rounds visit vertices in local
+// order and each visit reads its neighbours' and their faces' state: in this order a
+// vertex's rings lie in a few nearby stretches of every array, however the input was
+// numbered. Nothing computed depends on local numbering (every order that matters is
+// by global ids: candidates by key, sums over a vertex's faces by global face id,
+// output by global ids).
 void renumber_for_locality(PatchInput& in) {
   const size_t nv = in.positions.size(), nf = in.faces.size();
   // Every loop here is parallel (the setup ran them on one core): each writes its own
-  // elements.
+  // elements, and the box's min / max are exact whatever the order of the blocks.
+  struct Bounds {
+    Vec3 lo, hi;
+  };
+  Bounds none;
+  none.lo.fill(std::numeric_limits<double>::infinity());
+  none.hi.fill(-std::numeric_limits<double>::infinity());
+  // An equal +0.0 / -0.0 keeps the earlier one, as the serial loop did: the blocks are
+  // joined left to right.
+  auto join = [](Bounds a, const Bounds& b) {
+    for (int k = 0; k < 3; ++k) {
+      a.lo[k] = std::min(a.lo[k], b.lo[k]);
+      a.hi[k] = std::max(a.hi[k], b.hi[k]);
+    }
+    return a;
+  };
+  const Bounds box = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, nv, 4096), none,
+      [&](const tbb::blocked_range<size_t>& r, Bounds b) {
+        for (size_t v = r.begin(); v < r.end(); ++v)
+          for (int k = 0; k < 3; ++k) {
+            const double x = in.positions[v][k];
+            if (std::isfinite(x)) {
+              b.lo[k] = std::min(b.lo[k], x);
+              b.hi[k] = std::max(b.hi[k], x);
+            }
+          }
+        return b;
+      },
+      join);
+  const Vec3 lo = box.lo, hi = box.hi;
+  const double extent = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  if (nv < 2 || !(extent > 0.0) || !std::isfinite(extent)) return;
   const bool mesh = tbb::parallel_reduce(
       tbb::blocked_range<size_t>(0, nf, 4096), true,
       [&](const tbb::blocked_range<size_t>& r, bool ok) {
@@ -221,10 +248,33 @@ void renumber_for_locality(PatchInput& in) {
       },
       std::logical_and<bool>());
   if (!mesh) return;  // not a mesh: left as given
-  UninitializedVector<uint32_t> old_of = locality_order(nv, [&](size_t v) -> const Vec3& { return in.positions[v]; });
-  if (old_of.empty()) return;
-  UninitializedVector<uint32_t> new_of(nv);
-  parallel_over(nv, [&](size_t i) { new_of[old_of[i]] = uint32_t(i); }, 4096);
+  const double scale = double((1u << 21) - 1) / extent;
+  auto lane = [&](double x, int k) -> uint64_t {
+    const double q = (x - lo[k]) * scale;  // in [0, 2^21 - 1] when finite
+    return std::isfinite(q) ? spread_bits21(static_cast<uint64_t>(std::clamp(q, 0.0, double((1u << 21) - 1)))) : 0;
+  };
+  // The scratch arrays are UninitializedVectors and the permuted ones are sized by
+  // parallel_resize: fresh pages in every patch, faulted in on every thread.
+  UninitializedVector<std::pair<uint64_t, uint32_t>> by_code(nv);
+  parallel_over(nv, [&](size_t v) {
+    const Vec3& p = in.positions[v];
+    by_code[v] = {lane(p[0], 0) | lane(p[1], 1) << 1 | lane(p[2], 2) << 2, uint32_t(v)};
+  }, 4096);
+  // Ties in code are in index order already: the stable radix sort gives std::sort's order.
+  radix_sort_by_key(by_code, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
+  UninitializedVector<uint32_t> old_of(nv), new_of(nv);
+  parallel_over(nv, [&](size_t i) {
+    old_of[i] = by_code[i].second;
+    new_of[by_code[i].second] = uint32_t(i);
+  }, 4096);
+  release_memory(by_code);
+  auto permute = [](auto& values, const UninitializedVector<uint32_t>& from) {
+    if (values.empty()) return;
+    std::remove_reference_t<decltype(values)> moved;
+    parallel_resize(moved, from.size());
+    parallel_over(from.size(), [&](size_t i) { moved[i] = values[from[i]]; }, 4096);
+    values = std::move(moved);
+  };
   permute(in.positions, old_of);
   permute(in.vertex_gids, old_of);
   permute(in.incomplete, old_of);
@@ -234,24 +284,15 @@ void renumber_for_locality(PatchInput& in) {
   permute(in.best_gids, old_of);
   permute(in.best_costs, old_of);
   release_memory(old_of);
+  UninitializedVector<uint64_t> by_first(nf);  // smallest new vertex id << 32 | old face index
   parallel_over(nf, [&](size_t f) {
-    for (uint32_t& v : in.faces[f]) v = new_of[v];
-  }, 4096);
-  release_memory(new_of);
-  order_faces_by_first_vertex(in);
-}
-
-}  // namespace
-
-void order_faces_by_first_vertex(PatchInput& in) {
-  const size_t nf = in.faces.size();
-  UninitializedVector<uint64_t> by_first(nf);  // smallest vertex << 32 | given face index
-  parallel_over(nf, [&](size_t f) {
-    const auto& t = in.faces[f];
+    auto& t = in.faces[f];
+    for (uint32_t& v : t) v = new_of[v];
     by_first[f] = uint64_t{std::min({t[0], t[1], t[2]})} << 32 | f;
   }, 4096);
-  // The low half (the given index) is ascending already: sorting stably by the high
-  // half alone gives the same order in 2 radix passes instead of 4-5.
+  release_memory(new_of);
+  // The low half (the old index) is ascending already: sorting stably by the high half
+  // alone gives the same order in 2 radix passes instead of 4-5.
   radix_sort_by_key(by_first, [](uint64_t x) { return x >> 32; });
   UninitializedVector<uint32_t> face_from(nf);
   parallel_over(nf, [&](size_t i) { face_from[i] = static_cast<uint32_t>(by_first[i]); }, 4096);
@@ -260,6 +301,8 @@ void order_faces_by_first_vertex(PatchInput& in) {
   permute(in.face_gids, face_from);
   permute(in.owned_face, face_from);
 }
+
+}  // namespace
 
 bool verify_carried_enabled() {
   static const bool on = [] {
@@ -322,7 +365,7 @@ PatchDecimator::PatchDecimator(PatchInput in, const DecimateParams& params) : pa
     throw std::invalid_argument("PatchDecimator: array sizes disagree");
   if (nv >= kNone || in.faces.size() >= kNone / 3)
     throw std::invalid_argument("PatchDecimator: patch too large for 32-bit local ids");
-  if (!in.in_locality_order) renumber_for_locality(in);
+  renumber_for_locality(in);
   pos_ = std::move(in.positions);
   vgid_ = std::move(in.vertex_gids);
   // The per-vertex and per-face passes below run in parallel: each writes its own

@@ -159,9 +159,6 @@ struct PatchInput {
   // halo's edge sees a different 2-ring); there the first round skips the refresh.
   std::vector<uint64_t> best_gids;
   std::vector<double> best_costs;
-  // The caller numbered the vertices and ordered the faces as the setup would
-  // (locality_order.hpp): the setup does not renumber them again.
-  bool in_locality_order = false;
 };
 
 // The total order of edges: (cost, tie, smaller global id, larger global id), where

@@ -23,7 +23,6 @@
 
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
-#include "nodes/decimate/locality_order.hpp"
 #include "util/error.hpp"
 #include "util/morton.hpp"
 #include "util/parallel_fill.hpp"
@@ -1136,32 +1135,6 @@ void for_each_vertex_slice(size_t nv, size_t slices, Body&& body) {
 // A vertex is its record's index in the gathered array, which holds one record per gid
 // (UniqueVertexRecords: the first copy with a known carried best, else the first read,
 // so the patch does not depend on the read order; a record it replaces keeps its index).
-// Puts a patch's vertices ((gid, record index), in gid order) in the decimator's local
-// order (locality_order.hpp). False, the order left as given, where the decimator's setup
-// would leave it so.
-bool reorder_for_locality(UninitializedVector<std::pair<uint64_t, uint32_t>>& vorder, const VertexRecord* vb) {
-  const size_t nv = vorder.size();
-  // The positions gathered once, in gid order: the order's passes then read them in a row.
-  UninitializedVector<Vec3> positions(nv);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 4096), [&](const tbb::blocked_range<size_t>& range) {
-    constexpr size_t kAhead = 8;  // the records are visited at random
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      if (i + kAhead < range.end()) __builtin_prefetch(&vb[vorder[i + kAhead].second].position);
-      positions[i] = vb[vorder[i].second].position;
-    }
-  });
-  const UninitializedVector<uint32_t> old_of =
-      locality_order(nv, [&](size_t i) -> const Vec3& { return positions[i]; });
-  if (old_of.empty()) return false;
-  release_memory(positions);
-  UninitializedVector<std::pair<uint64_t, uint32_t>> ordered(nv);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, nv, 4096), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t j = range.begin(); j < range.end(); ++j) ordered[j] = vorder[old_of[j]];
-  });
-  vorder = std::move(ordered);
-  return true;
-}
-
 class PatchBfs {
  public:
   PatchBfs(uint32_t owner, int rings, uint64_t limit_faces) : owner_(owner), rings_(rings), pending_(rings + 1) {
@@ -1295,17 +1268,13 @@ class PatchBfs {
         for (uint32_t v : s.corners)
           if (v - lo < hi - lo && inside[v]++ == 0) first_owned[v] = uint8_t(s.owned);
     });
-    UninitializedVector<std::pair<uint64_t, uint32_t>> vorder;
+    std::vector<std::pair<uint64_t, uint32_t>> vorder;
     parallel_select(
         nv, [&](size_t v) { return inside[v] != 0; }, [&](size_t total) { vorder.resize(total); },
         [&](size_t v, size_t rank) { vorder[rank] = {vb[v].gid, uint32_t(v)}; });
     radix_sort_by_key(vorder, [](const std::pair<uint64_t, uint32_t>& x) { return x.first; });
     const size_t kept_v = vorder.size();
-    // The decimator's local order (locality_order.hpp), from the gid order the setup
-    // would have been given: written in it here, the setup does not permute every array.
-    const bool located = reorder_for_locality(vorder, vb);
     PatchInput in;
-    in.in_locality_order = true;
     std::vector<uint32_t> new_index(nv, std::numeric_limits<uint32_t>::max());
     const bool given_quadrics = nv > 0 && vb[0].has_quadric;
     const bool carried = given_quadrics && carry_bests;
@@ -1349,7 +1318,6 @@ class PatchBfs {
     });
     release_memory(loaded_);
     release_memory(ring_);
-    if (located) order_faces_by_first_vertex(in);
     return in;
   }
 
