@@ -2169,7 +2169,6 @@ std::optional<InputCountsBound> input_counts_bound(const std::filesystem::path& 
 // pages; review16: frames of 1-3 records, a peak 1.19-1.28x the eighth's bound), a
 // frame may hold a single record: every record is then counted with an envelope of
 // its own, which no frame can exceed.
-constexpr uint64_t frame_envelope_bytes = frame_header_bytes + sizeof(uint64_t);
 static uint64_t with_frame_envelopes(uint64_t record_bytes, uint64_t records, bool small_frames) {
   return small_frames ? record_bytes + records * frame_envelope_bytes + (1 << 20)
                       : record_bytes + record_bytes / 8 + (1 << 20);

@@ -182,7 +182,7 @@ RawFrameEnvelope raw_frame_envelope(uint64_t tag, uint32_t record_size, const st
   RawFrameEnvelope envelope;
   write_header(envelope.header.data(), tag, record_size, count, raw + sizeof(uint64_t), flag_raw);
   put<uint64_t>(envelope.trailer.data(), checksum_of_pieces(pieces));
-  envelope.bytes = frame_header_bytes + raw + sizeof(uint64_t);
+  envelope.bytes = frame_envelope_bytes + raw;
   return envelope;
 }
 
@@ -207,7 +207,7 @@ Bytes encode_frame(uint64_t tag, uint32_t record_size, const std::vector<Piece>&
   size_t raw = count * record_size;
   if (codec.raw) {
     // One copy from the pages into the frame, then the checksum while it is hot.
-    Bytes frame(frame_header_bytes + raw + sizeof(uint64_t));
+    Bytes frame(frame_envelope_bytes + raw);
     std::byte* payload = frame.data() + frame_header_bytes;
     size_t at = 0;
     for (const Piece& piece : pieces) {

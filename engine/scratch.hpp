@@ -90,6 +90,8 @@ struct FrameHeader {
   bool raw = false;
 };
 constexpr size_t frame_header_bytes = 48;
+// A raw frame's bytes beside its records: the header and the checksum after them.
+constexpr size_t frame_envelope_bytes = frame_header_bytes + sizeof(uint64_t);
 
 // Worst-case encoded size of `raw_bytes` of records, either codec (for leases).
 size_t frame_bound(size_t raw_bytes);

@@ -381,7 +381,7 @@ void write_encoded_chunk(Job& job, ScratchStore& scratch, MeshState& state, cons
 }
 
 // A raw frame's bytes: its blob and the envelope (header, checksum).
-uint64_t raw_frame_bytes(uint64_t blob_size) { return engine::frame_header_bytes + blob_size + sizeof(uint64_t); }
+uint64_t raw_frame_bytes(uint64_t blob_size) { return blob_size + engine::frame_envelope_bytes; }
 
 void write_chunk(Job& job, ScratchStore& scratch, MeshState& state, const ChunkMeta& meta, const Bytes& blob,
                  Lease carried, const char* stage) {
@@ -1788,8 +1788,11 @@ struct Runner {
 // raw_scratch_peak_bound (190-280 bytes a face: the 1M blob and terrain, the shared
 // meshes) and a shuffled 300k blob at 0.53 (550 bytes a face: its first state's chunks
 // share few corners).
+// A state chunk's bytes beside its records: the blob's counts (16) and the raw frame's
+// envelope.
+constexpr uint64_t kChunkEnvelope = 16 + engine::frame_envelope_bytes;
+
 uint64_t raw_state_bytes_bound(uint64_t faces) {
-  constexpr uint64_t kChunkEnvelope = 16 + engine::frame_header_bytes + sizeof(uint64_t);
   return faces * (kChunkEnvelope + sizeof(FaceRecord) + 3 * sizeof(VertexRecord));
 }
 
@@ -1802,7 +1805,7 @@ namespace {
 // so it is typically smaller, but not surely (a patch's owned faces may fall into more,
 // smaller chunks, each with its own copies of the vertices on its border).
 uint64_t raw_state_bytes(const MeshState& state) {
-  return state.blob_bytes_total + state.chunks.size() * (engine::frame_header_bytes + sizeof(uint64_t));
+  return state.blob_bytes_total + state.chunks.size() * engine::frame_envelope_bytes;
 }
 
 // The first state's raw bytes, estimated from the counts (the conversion writes it
@@ -1814,7 +1817,6 @@ uint64_t raw_state_bytes(const MeshState& state) {
 // shuffled input's chunks share few corners (a 300k blob: 428 bytes a face): the
 // estimate is then far short, and the stage's cap turns it zstd.
 uint64_t first_state_raw_estimate(uint64_t faces, uint64_t vertices, uint64_t chunk_faces) {
-  constexpr uint64_t kChunkEnvelope = 16 + engine::frame_header_bytes + sizeof(uint64_t);
   const uint64_t estimate = faces * sizeof(FaceRecord) + vertices * sizeof(VertexRecord) * 5 / 4 +
                             (faces / std::max<uint64_t>(1, chunk_faces) + 1) * kChunkEnvelope;
   return std::min(estimate, raw_state_bytes_bound(faces));
