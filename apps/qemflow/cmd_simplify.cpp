@@ -312,6 +312,12 @@ void add_simplify_command(CLI::App& root, Run& run) {
                   "(cost 0), linear between; >= --cut-rise: the fixed rise --cut-rise")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 64.0));
+  cmd->add_option("--charge-from", args->epochs.charge_from,
+                  "weigh the deviation charge (--deviation-weight) once an epoch begins with at most "
+                  "this many times the target faces; before, an edge costs its quadric error alone "
+                  "(about half the CPU); 0: from the start")
+      ->capture_default_str()
+      ->check(finite_in(0.0, 1e12));
   cmd->add_option("--min-normal-cos", args->params.min_normal_cos,
                   "tuning: smallest allowed cosine between a face's normals before and after a collapse")
       ->capture_default_str()

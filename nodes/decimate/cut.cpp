@@ -94,6 +94,14 @@ EpochPlan plan_epoch(const RoundSummary& total, uint64_t faces, uint64_t target_
   return plan;
 }
 
+DecimateParams summary_params(const DecimateParams& params, uint64_t epoch_start_faces,
+                              uint64_t target_faces, const EpochOptions& options) {
+  DecimateParams summary = params;
+  if (options.charge_from > 0.0 && double(epoch_start_faces) > options.charge_from * double(target_faces))
+    summary.deviation_weight = 0.0;
+  return summary;
+}
+
 DecimateParams relaxed_params(const DecimateParams& params) {
   DecimateParams relaxed = params;
   relaxed.min_normal_cos = std::min(relaxed.min_normal_cos, 0.0);

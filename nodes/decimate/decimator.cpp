@@ -1310,6 +1310,7 @@ void PatchDecimator::set_params(const DecimateParams& params) {
   std::fill(touched_.begin(), touched_.end(), uint8_t{1});
   candidates_.clear();
   bests_exact_ = false;
+  release_memory(verify_restored_);  // refreshed under the new params, not restored
 }
 
 RoundSummary PatchDecimator::summarize() const {

@@ -138,6 +138,7 @@ struct DecimateParams {
   // small original area, so greedy order removes such features early and the largest
   // error (Hausdorff) grows; 0 turns the charge off (pure quadric cost).
   double deviation_weight = 10.0;
+  friend bool operator==(const DecimateParams&, const DecimateParams&) = default;
 };
 
 struct PatchInput {
@@ -288,8 +289,11 @@ class PatchDecimator {
   // Returns the number of faces removed.
   uint64_t apply_cut(const RoundCut& cut);
 
-  // New validity parameters for the following rounds (every vertex is re-evaluated).
-  // run_epochs uses it to relax the geometric guards once no candidate is left.
+  // New parameters for the following rounds (every vertex is re-evaluated, and nothing
+  // restored from PatchInput::best_gids stands). run_epochs uses it to relax the
+  // geometric guards once no candidate is left and to weigh the deviation charge from
+  // EpochOptions::charge_from on; an out-of-core patch, to switch the charge on between
+  // its rounds and its summary.
   void set_params(const DecimateParams& params);
   const DecimateParams& params() const { return params_; }
 

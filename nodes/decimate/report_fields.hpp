@@ -12,7 +12,7 @@
 
 namespace qemflow::nodes {
 
-// The schedule the epochs ran: epoch_rounds, cut_rise, flat_cut_rise.
+// The schedule the epochs ran: epoch_rounds, cut_rise, flat_cut_rise, charge_from.
 void report_schedule(nlohmann::json& report, const EpochOptions& schedule);
 
 // `prefix` + refreshes, charges, validity_checks.

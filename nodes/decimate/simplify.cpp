@@ -37,23 +37,30 @@ double removed_share(uint64_t input_faces, uint64_t target_faces, uint64_t faces
 
 EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
                          const EpochOptions& options,
-                         const std::function<void(uint64_t, uint64_t)>& on_round) {
+                         const std::function<void(uint64_t, uint64_t)>& on_round,
+                         const EpochRunStart& start) {
   EpochRunStats st;
-  bool relaxed = !(decimator.params().min_normal_cos > 0.0);
+  DecimateParams params = start.params ? *start.params : decimator.params();
+  uint64_t epoch_start = start.epoch_start_faces ? start.epoch_start_faces : decimator.face_count();
+  bool relaxed = !(params.min_normal_cos > 0.0);
   auto round = [&](const RoundCut& cut) {
     decimator.apply_cut(cut);
     ++st.rounds;
     if (on_round) on_round(st.rounds, decimator.face_count());
   };
   while (decimator.face_count() > target_faces) {
+    const DecimateParams summary = summary_params(params, epoch_start, target_faces, options);
+    if (!(summary == decimator.params())) decimator.set_params(summary);
+    epoch_start = decimator.face_count();
     decimator.prepare_round();
     const EpochPlan plan =
         plan_epoch(decimator.summarize(), decimator.face_count(), target_faces, relaxed, options);
     if (plan.kind == EpochPlan::Kind::stop) break;
     ++st.epochs;
     if (plan.kind == EpochPlan::Kind::relax) {
-      // A global decision (the summed candidate count is zero), so partition-invariant.
-      decimator.set_params(relaxed_params(decimator.params()));
+      // A global decision (the summed candidate count is zero), so partition-invariant;
+      // the loop's top sets the relaxed params.
+      params = relaxed_params(params);
       relaxed = true;
       continue;
     }

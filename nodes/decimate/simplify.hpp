@@ -72,10 +72,23 @@ struct EpochRunStats {
   uint64_t rounds = 0, epochs = 0;
 };
 
+// Where run_epochs starts. A fresh run: nothing given (the decimator holds the run's
+// params, its face count is the input's). The out-of-core finish: the run's params
+// (the guards as the passes left them, the full deviation weight; the decimator holds
+// the last pass's summary params, maybe with the charge off) and the face count the
+// last pass began with (the epoch its summary followed: summary_params' count).
+struct EpochRunStart {
+  std::optional<DecimateParams> params;
+  uint64_t epoch_start_faces = 0;  // 0: the decimator's face count
+};
+
 // The epoch loop (cut.hpp) on one patch holding the whole mesh: the in-core reference
 // of the out-of-core schedule (exposed for tests/benchmarks). on_round(round, faces).
+// Each epoch's summary runs with summary_params (the charge from
+// EpochOptions::charge_from on).
 EpochRunStats run_epochs(PatchDecimator& decimator, uint64_t target_faces,
                          const EpochOptions& options,
-                         const std::function<void(uint64_t, uint64_t)>& on_round = {});
+                         const std::function<void(uint64_t, uint64_t)>& on_round = {},
+                         const EpochRunStart& start = {});
 
 }  // namespace qemflow::nodes

@@ -1578,11 +1578,12 @@ struct Runner {
   }
 
   // Runs one part: gather and build under a lease of at most patch_cap(), run the
-  // plan, summarize, export. False, with nothing run or kept, when the gather found
+  // plan under `params`, summarize under `summary` (the charge may switch on between:
+  // summary_params), export. False, with nothing run or kept, when the gather found
   // more faces than the lease holds.
   bool run_part(const MeshState& state, MeshState* next, PatchPart& part, const PatchPlan& plan,
-                const DecimateParams& params, std::vector<std::vector<Candidate>>* candidates, uint64_t needed,
-                RoundSummary& total) {
+                const DecimateParams& params, const DecimateParams& summary,
+                std::vector<std::vector<Candidate>>* candidates, uint64_t needed, RoundSummary& total) {
     const uint32_t p = part.owner;
     PhaseClock clock(job, stats, p);
     for (;;) {
@@ -1611,7 +1612,7 @@ struct Runner {
       stats.patch_faces_total += built->faces.size();
       stats.owned_faces_total += owned_faces;
       bool ok = true;
-      RoundSummary summary;
+      RoundSummary part_summary;
       std::vector<Candidate> owned;
       std::optional<PatchOutput> out;
       job.arena().execute([&] {
@@ -1620,16 +1621,17 @@ struct Runner {
         clock.charge(kSetup);
         run_patch_plan(d, plan, clock, stats.first_round_refreshes);
         clock.charge(kRounds);
+        if (!(summary == d.params())) d.set_params(summary);
         d.prepare_owned_summary_round();
         // Without rounds the summary's prepare is the first.
         if (plan.cuts.empty()) stats.first_round_refreshes += d.refreshes();
         stats.patch_work += d.work();
         stats.frozen_refreshes += d.frozen_refreshes();
         stats.frozen_collapses += d.frozen_collapses();
-        summary = d.summarize();
+        part_summary = d.summarize();
         if (candidates) owned = exact_cut_share(d.owned_candidates(), needed);
         clock.charge(kSummary);
-        if (summary.inexact_candidates) {
+        if (part_summary.inexact_candidates) {
           ok = false;
           return;
         }
@@ -1645,7 +1647,7 @@ struct Runner {
         stats.max_rings = std::max(stats.max_rings, this->rings());
         continue;
       }
-      total.add(summary);
+      total.add(part_summary);
       if (candidates) (*candidates).push_back(std::move(owned));
       if (next) {
         export_patch(*out, p, *next);
@@ -1691,14 +1693,16 @@ struct Runner {
     return {low, high};
   }
 
-  // One pass over the patches: each runs `plan` and exports its owned faces into `next`
-  // (unless `candidates` is given: then it only collects its exact-cut candidates).
+  // One pass over the patches: each runs `plan` under `params`, summarizes under
+  // `summary` and exports its owned faces into `next` (unless `candidates` is given:
+  // then it only collects its exact-cut candidates).
   // An owner whose patch would not fit patch_cap() runs as parts: a part that does not
   // fit is halved before anything of it ran (its gather found too many faces), a part
   // of at most kSmallestPart owned faces that does not fit is refused; the next pass
   // starts from the parts this one ran.
   RoundSummary pass(const MeshState& state, MeshState* next, const PatchPlan& plan, const DecimateParams& params,
-                    std::vector<std::vector<Candidate>>* candidates, uint64_t needed) {
+                    const DecimateParams& summary, std::vector<std::vector<Candidate>>* candidates,
+                    uint64_t needed) {
     RoundSummary total;
     pass_removed = 0;
     const std::string stage = "epoch " + std::to_string(stats.ooc_epochs + 1);
@@ -1711,7 +1715,7 @@ struct Runner {
       while (!todo.empty()) {
         PatchPart part = std::move(todo.back());
         todo.pop_back();
-        if (run_part(state, next, part, plan, params, candidates, needed, total)) {
+        if (run_part(state, next, part, plan, params, summary, candidates, needed, total)) {
           ran.push_back(std::move(part));
           continue;
         }
@@ -1951,7 +1955,12 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
     st.max_rings = std::max(st.max_rings, runner.rings());
   };
 
+  // The run's params (the guards relax once) and those of the last pass's summary, which
+  // the next pass's rounds and the finish run under (summary_params: the charge off
+  // until an epoch begins near the target); the face count that last pass began with.
   DecimateParams params = options.simplify.params;
+  DecimateParams in_effect = params;
+  uint64_t last_pass_faces = 0;
   bool relaxed = !(params.min_normal_cos > 0.0);
   bool first = true;
   RoundSummary summary;
@@ -1978,6 +1987,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
         if (e.kind == EpochPlan::Kind::stop) break;
         if (e.kind == EpochPlan::Kind::relax) {
           params = relaxed_params(params);
+          in_effect = relaxed_params(in_effect);  // the summary-only pass builds its patches with it
           relaxed = true;
           runner.carry_bests = false;  // found under the strict guards
         } else if (e.kind == EpochPlan::Kind::bin_cut) {
@@ -1985,7 +1995,7 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
         } else {
           std::vector<std::vector<Candidate>> lists;
           set_pass_rings(0, false);
-          runner.pass(*state, nullptr, {}, params, &lists, e.needed);
+          runner.pass(*state, nullptr, {}, in_effect, in_effect, &lists, e.needed);
           const std::vector<std::span<const Candidate>> spans(lists.begin(), lists.end());
           const auto cut = exact_cut(spans, e.needed);
           if (!cut) break;
@@ -1995,11 +2005,14 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
       set_pass_rings(plan.cuts.size(), first);
       choose_state_codec(state->faces, raw_state_bytes(*state), "epoch " + std::to_string(st.ooc_epochs + 1));
       auto next = new_state();
-      summary = runner.pass(*state, next.get(), plan, params, nullptr, 0);
+      const DecimateParams summary_as = summary_params(params, state->faces, st.target_faces, epoch);
+      summary = runner.pass(*state, next.get(), plan, in_effect, summary_as, nullptr, 0);
+      in_effect = summary_as;
+      last_pass_faces = state->faces;
       st.rounds += plan.cuts.size();
       ++st.ooc_epochs;
       first = false;
-      runner.carry_bests = true;  // the summary that exported them ran with `params`
+      runner.carry_bests = true;  // the summary that exported them ran with `in_effect`
       replace_state(std::move(next));
       engine::trim_allocator();
     }
@@ -2043,12 +2056,13 @@ OocResult simplify_blocks(Job& job, ScratchStore& scratch, const engine::LoadedM
   job.arena().execute([&] {
     {
       begin("finish setup");
-      PatchDecimator d(std::move(whole), params);
+      PatchDecimator d(std::move(whole), in_effect);
       st.in_core_carried_bests = d.restored_bests();
       begin("finish rounds");
-      const EpochRunStats run = run_epochs(d, st.target_faces, epoch, [&](uint64_t, uint64_t faces) {
-        job.progress(runner.removed_progress(faces), "in core");
-      });
+      const EpochRunStats run = run_epochs(
+          d, st.target_faces, epoch,
+          [&](uint64_t, uint64_t faces) { job.progress(runner.removed_progress(faces), "in core"); },
+          EpochRunStart{params, last_pass_faces});
       st.rounds += run.rounds;
       st.epochs += run.epochs;
       st.in_core_work = d.work();

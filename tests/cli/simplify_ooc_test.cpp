@@ -123,6 +123,11 @@ TEST(SimplifyOoc, ShuffledReadsAndVerifiedCarriedStateEqualInCore) {
     expect_partition_invariant(mesh, "--target-faces 301", {4}, 1,
                                std::string("QEMFLOW_VERIFY_CARRIED=1 QEMFLOW_FUZZ_ORDER=") + seed + " ");
   }
+  // --charge-from 2 switches the charge on in a pass (between its rounds and its
+  // summary): the bests the summary carries are found under the new params.
+  SCOPED_TRACE("--charge-from 2");
+  expect_partition_invariant(mesh, "--target-faces 301 --charge-from 2", {4}, 1,
+                             "QEMFLOW_VERIFY_CARRIED=1 QEMFLOW_FUZZ_ORDER=4 ");
   // An input in random order: the first state's chunks then share few vertices, so most
   // vertex records arrive in several copies (UniqueVertexRecords keeps one).
   SCOPED_TRACE("gen --shuffle");
@@ -176,9 +181,18 @@ TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
   EXPECT_EQ(plain["in_core_charges"].get<uint64_t>(), 0u);
   EXPECT_GT(plain["in_core_validity_checks"].get<uint64_t>(), 0u);
   const auto charged = simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 6000");
+  EXPECT_EQ(charged["charge_from"].get<double>(), 0.0);
   EXPECT_GT(charged["patch_charges"].get<uint64_t>(), 0u);
   EXPECT_GT(charged["in_core_charges"].get<uint64_t>(), 0u);
   EXPECT_GT(charged["in_core_refreshes"].get<uint64_t>(), 0u);
+  // --charge-from 2: weighed from 2 x the target (602 faces) on, in the finish, not in
+  // the patches, which run down to 6000 faces.
+  const auto last_stretch =
+      simplify_with_report(dir, mesh, "--target-faces 301 --clusters 4 --in-core-faces 6000 --charge-from 2");
+  EXPECT_EQ(last_stretch["charge_from"].get<double>(), 2.0);
+  EXPECT_EQ(last_stretch["patch_charges"].get<uint64_t>(), 0u);
+  EXPECT_GT(last_stretch["in_core_charges"].get<uint64_t>(), 0u);
+  expect_out_equals_in_core(dir, mesh, "--target-faces 301 --charge-from 2");
   run_ok(q() + " simplify " + mesh.string() + " " + (dir / "plain.ply").string() +
          " --target-faces 301 --in-core --quiet --deviation-weight 0 --report " + (dir / "plain.json").string());
   const auto in_core = read_json(dir / "plain.json");

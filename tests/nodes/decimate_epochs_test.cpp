@@ -49,10 +49,12 @@ struct GlobalMesh {
 };
 
 GlobalMesh in_core_result(const Mesh& m, uint64_t target, const EpochOptions& options,
-                          EpochRunStats* stats = nullptr) {
-  PatchDecimator d(whole_patch(m), {});
+                          EpochRunStats* stats = nullptr, const DecimateParams& params = {},
+                          DecimatorWork* work = nullptr) {
+  PatchDecimator d(whole_patch(m), params);
   const EpochRunStats st = run_epochs(d, target, options);
   if (stats) *stats = st;
+  if (work) *work = d.work();
   const PatchOutput out = d.extract();
   GlobalMesh g;
   for (size_t i = 0; i < out.faces.size(); ++i)
@@ -118,6 +120,8 @@ struct Simulation {
   // The patches' work skipped at frozen vertices (PatchDecimator::frozen_refreshes,
   // frozen_collapses), and the refreshes they ran, summed over every patch built.
   uint64_t frozen_refreshes = 0, frozen_collapses = 0, patch_refreshes = 0;
+  // Epochs whose summary weighed the deviation charge (EpochOptions::charge_from).
+  uint64_t charged_epochs = 0;
 
   void run_plan(std::span<PatchDecimator* const> ds, const EpochPlan& plan,
                 const std::optional<RoundCut>& exact) const {
@@ -216,10 +220,15 @@ struct Simulation {
   }
 
   // One epoch on both patches; false when a patch reports that its halo is too small.
-  bool epoch(GlobalMesh& g, bool& relaxed, DecimateParams& params, bool first_epoch, int rings,
-             bool& done) {
+  // `params`: the run's (the guards relax once); the epoch's summary and rounds run under
+  // summary_params of the count the previous epoch began with (`previous_start`), as
+  // run_epochs does.
+  bool epoch(GlobalMesh& g, bool& relaxed, DecimateParams& params, uint64_t previous_start, bool first_epoch,
+             int rings, bool& done) {
+    const DecimateParams summary = summary_params(params, previous_start, target, options);
+    charged_epochs += summary.deviation_weight > 0.0;
     std::vector<PatchDecimator> patches;
-    for (int side = 0; side < 2; ++side) patches.emplace_back(patch(g, side, rings, first_epoch), params);
+    for (int side = 0; side < 2; ++side) patches.emplace_back(patch(g, side, rings, first_epoch), summary);
     RoundSummary total;
     for (auto& p : patches) {
       restored += p.restored_bests();
@@ -230,6 +239,7 @@ struct Simulation {
     if (total.inexact_candidates != 0) return false;
     const EpochPlan plan = plan_epoch(total, g.faces.size(), target, relaxed, options);
     if (reference) {
+      if (!(summary == reference->params())) reference->set_params(summary);
       reference->prepare_round();
       const RoundSummary in_core = reference->summarize();
       EXPECT_EQ(in_core.faces_per_bin, total.faces_per_bin);
@@ -241,8 +251,7 @@ struct Simulation {
       return true;
     }
     if (plan.kind == EpochPlan::Kind::relax) {
-      if (reference) reference->set_params(relaxed_params(params));
-      params = relaxed_params(params);
+      params = relaxed_params(params);  // the reference's too, at the next epoch's start
       relaxed = true;
       // The carried bests were found under the strict guards.
       for (auto& [gid, v] : g.vertices) v.best_gid = kBestUnknown;
@@ -268,8 +277,14 @@ struct Simulation {
     }
     // Exchange: the next state is the union of the owned outputs.
     GlobalMesh next;
+    // The next epoch's summary params (this epoch began with g's faces): the carried bests
+    // must be found under them.
+    const DecimateParams next_summary = summary_params(params, g.faces.size(), target, options);
     for (auto& p : patches) {
-      if (carry) p.prepare_round();  // the epoch's summary: every best exact
+      if (carry) {  // the epoch's summary: every best exact
+        if (!(next_summary == p.params())) p.set_params(next_summary);
+        p.prepare_round();
+      }
       const PatchOutput out = p.extract();
       if (out.untrusted_vertices != 0) return false;
       EXPECT_EQ(out.best_gids.empty(), !carry);
@@ -332,14 +347,16 @@ struct Simulation {
     for (size_t v = 0; v < mesh.points.size(); ++v) g.vertices[v] = {mesh.points[v], {}, 0};
     bool relaxed = false, first = true, done = false;
     DecimateParams params;
+    uint64_t previous_start = g.faces.size();
     int rings = halo;
     while (g.faces.size() > target && !done) {
       rings = std::max(1, rings - 1);
+      const uint64_t start = g.faces.size();
       for (;;) {
         GlobalMesh attempt = g;
         bool attempt_relaxed = relaxed;
         DecimateParams attempt_params = params;
-        if (epoch(attempt, attempt_relaxed, attempt_params, first, rings, done)) {
+        if (epoch(attempt, attempt_relaxed, attempt_params, previous_start, first, rings, done)) {
           g = std::move(attempt);
           relaxed = attempt_relaxed;
           params = attempt_params;
@@ -354,6 +371,7 @@ struct Simulation {
         }
       }
       max_halo_used = std::max(max_halo_used, rings);
+      previous_start = start;
       first = false;
       ++epochs;
     }
@@ -503,6 +521,51 @@ TEST(DecimateEpochs, FlatCandidatesKeepTheSlowRise) {
 // out of core (one face to go, a two-face candidate first): a share without the
 // two-face candidate made the single-face one look next in order, and the cut at its
 // key took every candidate before it.
+TEST(DecimateEpochs, SummaryParamsWeighTheChargeFromChargeFromTimesTheTarget) {
+  EpochOptions options;
+  options.charge_from = 3.0;
+  DecimateParams params = relaxed_params({});
+  params.deviation_weight = 7.0;
+  // Off while the epoch began above 3 x the target, on from there; the rest as given.
+  EXPECT_EQ(summary_params(params, 301, 100, options).deviation_weight, 0.0);
+  EXPECT_EQ(summary_params(params, 300, 100, options).deviation_weight, 7.0);
+  EXPECT_EQ(summary_params(params, 1, 100, options).deviation_weight, 7.0);
+  DecimateParams off = params;
+  off.deviation_weight = 0.0;
+  EXPECT_TRUE(summary_params(params, 301, 100, options) == off);
+  options.charge_from = 0.0;  // from the start
+  EXPECT_TRUE(summary_params(params, 1000000, 100, options) == params);
+}
+
+// With charge_from 2 the charge is weighed in the last stretch only: fewer charges than
+// a run charged throughout (the default), but some; a charge_from below 1 never reaches
+// it (plain QEM to the bit), one above the input's ratio charges from the first summary
+// (the run charged throughout, to the bit).
+TEST(DecimateEpochs, TheChargeIsWeighedOnlyInTheLastStretch) {
+  const Case c = cases()[0];  // 20480 faces -> 200
+  auto run = [&](double charge_from, double weight, DecimatorWork* work = nullptr) {
+    EpochOptions options;
+    options.charge_from = charge_from;
+    DecimateParams params;
+    params.deviation_weight = weight;
+    return in_core_result(c.mesh, c.target, options, nullptr, params, work);
+  };
+  DecimatorWork throughout, last_stretch, never;
+  const GlobalMesh charged = run(0.0, 10.0, &throughout);
+  const GlobalMesh last_stretch_mesh = run(2.0, 10.0, &last_stretch);
+  const GlobalMesh not_reached = run(0.5, 10.0, &never);
+  EXPECT_GT(last_stretch.charges, 0u);
+  EXPECT_LT(2 * last_stretch.charges, throughout.charges);
+  EXPECT_EQ(never.charges, 0u);
+  EXPECT_NE(last_stretch_mesh.faces, charged.faces);
+  expect_same_mesh(run(EpochOptions{}.charge_from, 10.0), charged);  // the default: throughout
+  expect_same_mesh(not_reached, run(0.0, 0.0));
+  expect_same_mesh(run(1e6, 10.0), charged);
+  std::printf("charges: %llu throughout, %llu in the last stretch\n",
+              static_cast<unsigned long long>(throughout.charges),
+              static_cast<unsigned long long>(last_stretch.charges));
+}
+
 TEST(DecimateEpochs, ExactCutOfThePatchesSharesIsTheExactCutOfTheirWholeLists) {
   auto candidate = [](double cost, uint64_t gid, uint32_t faces) {
     Candidate c;
@@ -601,6 +664,24 @@ TEST(DecimateEpochs, TwoPatchSimulationCarryingBestEdgesEqualsInCoreAndRefreshes
   EXPECT_LT(2 * refreshes[1], refreshes[0]);
 }
 
+TEST(DecimateEpochs, TwoPatchSimulationSwitchingTheChargeOnEqualsInCore) {
+  // --charge-from 2: the charge switches on between an epoch's rounds and its summary
+  // (summary_params), in every patch alike; with carried bests (found under the params
+  // they are restored under) and blind rounds, as in the pipeline, the result is still
+  // the in-core one, every trusted vertex checked against the lockstep decimator.
+  const Case c = cases()[1];
+  EpochOptions options;
+  options.epoch_rounds = 2;
+  options.charge_from = 2.0;
+  Simulation sim{c.mesh, c.target, options, int(kInitialQuadricRadius + kTrustSpread * 2 + 3)};
+  sim.carry = true;
+  sim.blind = true;
+  run_in_lockstep(sim, c);
+  EXPECT_GT(sim.restored, c.mesh.points.size());
+  EXPECT_GT(sim.charged_epochs, 0u);
+  EXPECT_GT(sim.epochs, sim.charged_epochs + 5);
+}
+
 TEST(DecimateEpochs, TwoPatchSimulationFreezingTheUntrustedHaloEqualsInCore) {
   // Untrusted vertices that are not owned are frozen (no refresh, no LME) and inexact
   // candidates not owned with both ends within kDecisionRadius rings of untrusted state
@@ -634,6 +715,9 @@ TEST(DecimateEpochs, RestoredBestsContinueExactlyLikeTheDecimatorTheyCameFrom) {
   // the result is the same bit for bit.
   const Mesh m = qemflow::testing::icosphere(5, 0.02, 3);
   EpochOptions options;
+  // Charged throughout: a run_epochs that switched the charge on would refresh every
+  // vertex (set_params) and restore nothing.
+  options.charge_from = 0.0;
   PatchDecimator original(whole_patch(m), {});
   run_epochs(original, m.triangles.size() / 3, options);
   original.prepare_round();
