@@ -8,7 +8,9 @@
 #   bench/peers.sh [BUILD_DIR]         (default build/)
 # Environment: PEERS_MESHES  space-separated list of mesh paths and gen:FACES entries
 #                            (default: the Stanford dragon, igea, gen:1M, gen:20M)
-#              PEERS_TOOLS   default "qemflow meshopt openmesh"
+#              PEERS_TOOLS   default "qemflow meshopt openmesh"; also qemflow-fast,
+#                            qemflow with --charge-from 2 (the deviation charge only in
+#                            the last stretch: nodes/decimate/README.md)
 #              PEERS_RATIOS  default "0.01 0.001"
 #              PEERS_CSV     output file (default bench/results/peers.csv)
 set -euo pipefail
@@ -47,10 +49,12 @@ for mesh in $meshes; do
     for tool in $tools; do
       result="$work/$name-$tool-$ratio.ply"
       timing="$work/time.txt"
-      if [[ "$tool" == qemflow ]]; then
+      if [[ "$tool" == qemflow* ]]; then
+        extra=()
+        [[ "$tool" == qemflow-fast ]] && extra=(--charge-from 2)
         /usr/bin/time -f "%e %U %S %M" -o "$timing" \
           "$qemflow" simplify "$path" "$result" --ratio "$ratio" --in-core --quiet \
-          --report "$work/report.json"
+          --report "$work/report.json" "${extra[@]}"
         input_faces=$(python3 -c "import json;print(json.load(open('$work/report.json'))['input_faces'])")
       else
         /usr/bin/time -f "%e %U %S %M" -o "$timing" \
