@@ -7,6 +7,8 @@
 #
 #   bench/ooc.sh [BUILD_DIR] [WORK_DIR] [FACES:BUDGET ...]
 #   bench/ooc.sh build /tmp/qemflow-ooc 50M:512M 200M:4G      (the defaults)
+#   SIMPLIFY_ARGS="--charge-from 2" bench/ooc.sh ...           (extra simplify arguments,
+#                                                              the CSV's last column)
 #
 # Every file it makes lives in WORK_DIR and is deleted at exit.
 set -euo pipefail
@@ -19,7 +21,7 @@ QEMFLOW="$BUILD/apps/qemflow"
 mkdir -p "$WORK"
 trap 'rm -rf "$WORK"' EXIT
 
-echo "faces,budget,output_faces,patches,epochs,out_of_core_epochs,in_core_faces,halo_redos,patch_per_owned,gathered_per_owned,wall_s,cpu_s,load1,peak_rss_mib,within_budget,faces_per_s,scratch_read_mib,scratch_written_mib"
+echo "faces,budget,output_faces,patches,epochs,out_of_core_epochs,in_core_faces,halo_redos,patch_per_owned,gathered_per_owned,wall_s,cpu_s,load1,peak_rss_mib,within_budget,faces_per_s,scratch_read_mib,scratch_written_mib,args"
 for RUN in "${RUNS[@]}"; do
   FACES=${RUN%%:*}
   BUDGET=${RUN##*:}
@@ -28,8 +30,8 @@ for RUN in "${RUNS[@]}"; do
   echo "simplify to 1% at --mem-budget $BUDGET..." >&2
   LOAD=$(cut -d' ' -f1 /proc/loadavg)
   "$QEMFLOW" simplify "$WORK/in.ply" "$WORK/out.ply" --ratio 0.01 --mem-budget "$BUDGET" --scratch "$WORK" \
-    --report "$WORK/report.json" --quiet
-  /usr/bin/python3 - "$WORK/report.json" "$FACES" "$BUDGET" "$LOAD" <<'PY'
+    --report "$WORK/report.json" --quiet ${SIMPLIFY_ARGS:-}  # shellcheck disable=SC2086
+  /usr/bin/python3 - "$WORK/report.json" "$FACES" "$BUDGET" "$LOAD" "${SIMPLIFY_ARGS:-}" <<'PY'
 import json, sys
 r = json.load(open(sys.argv[1]))
 wall = r["wall_seconds"]
@@ -40,7 +42,7 @@ gathered = r.get("gathered_faces_total", 0) / owned if owned else 0
 print(f"{sys.argv[2]},{sys.argv[3]},{r['output_faces']},{r['patches']},{r['epochs']},{r['out_of_core_epochs']},"
       f"{r['in_core_faces']},{r['halo_redos']},{patch:.2f},{gathered:.2f},{wall:.1f},{r['cpu_seconds']:.1f},"
       f"{sys.argv[4]},{r['peak_rss_bytes'] / 2**20:.0f},{ok},{r['input_faces'] / wall:.0f},"
-      f"{r['scratch_bytes_read'] / 2**20:.0f},{r['scratch_bytes_written'] / 2**20:.0f}")
+      f"{r['scratch_bytes_read'] / 2**20:.0f},{r['scratch_bytes_written'] / 2**20:.0f},{sys.argv[5]}")
 PY
   rm -f "$WORK/in.ply" "$WORK/out.ply"
 done

@@ -164,6 +164,33 @@ TEST(SimplifyOoc, CarriedBestEdgesKeepTheOutputAndSpareFirstRoundRefreshes) {
   EXPECT_EQ(r["output_faces"].get<uint64_t>(), 300u);
 }
 
+// --charge-from switches the charge on in a pass, between its rounds and its summary
+// (summary_params): after the guards relaxed (the strict run relaxes near 4.4k faces,
+// the charge starts from 600), in the epochs of the exact-cut end game (1.05 x the
+// target), and from the first summary (40 x the target is above the input's count: the
+// run charged throughout). Every restored best is checked (QEMFLOW_VERIFY_CARRIED).
+TEST(SimplifyOoc, TheChargeSwitchingOnInAPassEqualsInCore) {
+  TempDir dir;
+  const auto mesh = generate(dir, "--faces 12000");
+  for (const std::string args : {"--target-faces 300 --min-normal-cos 0.995 --charge-from 2",
+                                 "--target-faces 301 --charge-from 1.05", "--target-faces 301 --charge-from 40"}) {
+    SCOPED_TRACE(args);
+    const auto r = simplify_with_report(dir, mesh, args + " --clusters 4 --in-core-faces 1", 0,
+                                        "QEMFLOW_VERIFY_CARRIED=1 ");
+    expect_out_equals_in_core(dir, mesh, args);
+    EXPECT_GT(r["out_of_core_epochs"].get<uint64_t>(), 10u);
+    EXPECT_GT(r["patch_charges"].get<uint64_t>(), 0u);
+  }
+  // From the first summary on, the run is the default one (charged throughout).
+  run_ok(q() + " simplify " + mesh.string() + " " + (dir / "default.ply").string() + " --target-faces 301 --in-core --quiet");
+  EXPECT_TRUE(file_bytes(dir / "out.ply") == file_bytes(dir / "default.ply"));
+  // A finish that starts where the charge starts (the last pass began above 602 faces,
+  // the finish below): its first summary follows the last pass's count, not its own.
+  const auto r = simplify_with_report(dir, mesh, "--target-faces 301 --charge-from 2 --clusters 4 --in-core-faces 640");
+  EXPECT_LT(r["in_core_faces"].get<uint64_t>(), 602u);
+  expect_out_equals_in_core(dir, mesh, "--target-faces 301 --charge-from 2");
+}
+
 TEST(SimplifyOoc, PlainQemWithoutTheDeviationChargeEqualsInCoreToo) {
   TempDir dir;
   const auto mesh = generate(dir, "--faces 12000");
