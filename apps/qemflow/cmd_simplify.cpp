@@ -322,6 +322,11 @@ void add_simplify_command(CLI::App& root, Run& run) {
                   "tuning: smallest allowed cosine between a face's normals before and after a collapse")
       ->capture_default_str()
       ->check(finite_in(-1.0, 1.0));
+  cmd->add_option("--new-fold-cos", args->params.new_fold_cos,
+                  "tuning: a collapse may not leave two faces that share an edge with normals' cosine "
+                  "below this where the faces around it had no such pair (-1: off)")
+      ->capture_default_str()
+      ->check(finite_in(-1.0, 1.0));
   cmd->add_option("--min-face-quality", args->params.min_face_quality,
                   "tuning: collapses may not create faces with |cross|/longest_edge^2 below this")
       ->capture_default_str()

@@ -118,6 +118,10 @@ inline constexpr uint64_t kBestNone = ~uint64_t{0} - 1;   // exact: no valid edg
 struct DecimateParams {
   // A collapse is invalid when a face normal turns so that cos(angle) < this.
   double min_normal_cos = 0.2;
+  // A collapse is invalid when two faces that share an edge afterwards fold onto each
+  // other (their normals' cosine is below this) where neither endpoint's fan held such a
+  // pair before. -1 turns the check off.
+  double new_fold_cos = -0.5;
   // A face is degenerate when |cross| / (longest edge)^2 (about the sine of its
   // smallest angle) is below this; collapses may not create one (nor make one worse).
   double min_face_quality = 1e-6;
@@ -375,7 +379,7 @@ class PatchDecimator {
   double deviation(uint32_t a, uint32_t b, const Vec3& p, Scratch& s) const;
   // fan_a: fan_neighbors(a, corners_a).
   bool collapse_valid(uint32_t a, std::span<const uint32_t> corners_a, std::span<const FanEdge> fan_a,
-                      uint32_t b, const Vec3& p) const;
+                      uint32_t b, const Vec3& p, Scratch& s) const;
   // collapse_valid of edge (v, w) at `corner` / `twin`, from falive_ when known
   // (`position`, which may be null, is then not needed), else checked and cached.
   bool edge_valid(uint32_t v, std::span<const uint32_t> corners_v, std::span<const FanEdge> fan_v,

@@ -198,7 +198,7 @@ TEST(CliUsage, TuningValuesMustBeFiniteAndInRange) {
   TempDir dir;
   for (const std::string bad : {"--round-fraction nan", "--candidate-fraction 2", "--min-normal-cos nan",
                                 "--min-face-quality inf", "--fold-cos -3", "--boundary-weight nan",
-                                "--deviation-weight nan"}) {
+                                "--deviation-weight nan", "--new-fold-cos 2", "--charge-from -1"}) {
     expect_simplify_refused(dir, "--ratio 0.5 " + bad, 2, "must be a number from");
     std::filesystem::remove(dir / "out.ply");
   }
