@@ -347,12 +347,11 @@ struct PatchDecimator::Scratch {
   std::vector<uint32_t> next, prev;  // fan_links()
   std::vector<uint64_t> fan_index;    // find_in_fan's index
   std::vector<double> areas;
-  // collapse_valid's fold check: the faces of each endpoint (a, then b), with their
-  // normals before and after the collapse and the vertices before / after the endpoint.
+  // collapse_valid's fold check: the faces of each endpoint (a, then b) that survive the
+  // collapse, with their normals after it and the vertices before / after the endpoint.
   struct FanFace {
-    Vec3 n_old, n_new;
+    Vec3 normal;
     uint32_t from, to;
-    bool removed;  // holds both endpoints: gone after the collapse
   };
   std::vector<FanFace> fold[2];
   uint64_t refreshed = 0;  // refresh_best calls (prepare's counter)
@@ -757,22 +756,19 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
       const auto& t = fv_[c / 3];
       const uint32_t slot = c % 3;
       const Vec3 &p0 = pos_[t[0]], &p1 = pos_[t[1]], &p2 = pos_[t[2]];
-      Scratch::FanFace face{triangle_normal(p0, p1, p2), {}, t[kPrevSlot[slot]], t[kNextSlot[slot]], contains(t, other)};
-      if (!face.removed) {
-        const Vec3 q0 = slot == 0 ? p : p0, q1 = slot == 1 ? p : p1, q2 = slot == 2 ? p : p2;
-        face.n_new = triangle_normal(q0, q1, q2);
-        if (below_quality(q0, q1, q2, face.n_new, params_.min_face_quality) &&
-            triangle_quality(q0, q1, q2, face.n_new) < triangle_quality(p0, p1, p2, face.n_old))
-          return false;
-        const double old_len2 = dot(face.n_old, face.n_old);
-        if (old_len2 > 0.0) {
-          const double d = dot(face.n_old, face.n_new);
-          if (d <= 0.0) return false;
-          if (d * d < params_.min_normal_cos * params_.min_normal_cos * old_len2 * dot(face.n_new, face.n_new))
-            return false;
-        }
+      if (contains(t, other)) continue;  // removed by the collapse
+      const Vec3 q0 = slot == 0 ? p : p0, q1 = slot == 1 ? p : p1, q2 = slot == 2 ? p : p2;
+      const Vec3 n_old = triangle_normal(p0, p1, p2), n_new = triangle_normal(q0, q1, q2);
+      if (below_quality(q0, q1, q2, n_new, params_.min_face_quality) &&
+          triangle_quality(q0, q1, q2, n_new) < triangle_quality(p0, p1, p2, n_old))
+        return false;
+      const double old_len2 = dot(n_old, n_old);
+      if (old_len2 > 0.0) {
+        const double d = dot(n_old, n_new);
+        if (d <= 0.0) return false;
+        if (d * d < params_.min_normal_cos * params_.min_normal_cos * old_len2 * dot(n_new, n_new)) return false;
       }
-      if (fold_limit > -1.0) fan.push_back(face);
+      if (fold_limit > -1.0) fan.push_back({n_new, t[kPrevSlot[slot]], t[kNextSlot[slot]]});
     }
   }
   // ...nor fold two faces onto each other where nothing was folded: faces that share an
@@ -791,35 +787,41 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
       const double lengths = dot(x, x) * dot(y, y);
       return lengths > 0.0 && d < fold_limit * std::sqrt(lengths);
     };
-    // Around each endpoint, face i and face j share the edge (endpoint, i.to = j.from);
-    // the fan is manifold, so each face has one such j at most.
-    auto any_fan_pair = [&](auto&& pair_folded) {
-      for (const auto& fan : s.fold)
-        for (const auto& fi : fan)
-          for (const auto& fj : fan)
-            if (fi.to == fj.from) {
-              if (pair_folded(fi, fj)) return true;
-              break;
-            }
-      return false;
-    };
-    bool folds = any_fan_pair([&](const Scratch::FanFace& fi, const Scratch::FanFace& fj) {
-      return !fi.removed && !fj.removed && folded(fi.n_new, fj.n_new);
-    });
+    // Around each endpoint, surviving faces i and j share the edge (endpoint, i.to =
+    // j.from); the fan is manifold, so each face has one such j at most.
+    bool folds = false;
+    for (const auto& fan : s.fold)
+      for (size_t i = 0; i < fan.size() && !folds; ++i)
+        for (const auto& fj : fan)
+          if (fan[i].to == fj.from) {
+            folds = folded(fan[i].normal, fj.normal);
+            break;
+          }
     // Across (p, c) for each opposite vertex c, a's surviving face at edge (a, c) and b's
     // at (b, c) become neighbours.
     for (int k = 0; k < shared && !folds; ++k) {
       const Scratch::FanFace *at_a = nullptr, *at_b = nullptr;
       for (const auto& f : s.fold[0])
-        if (!f.removed && (f.to == opposite[k] || f.from == opposite[k])) at_a = &f;
+        if (f.to == opposite[k] || f.from == opposite[k]) at_a = &f;
       for (const auto& f : s.fold[1])
-        if (!f.removed && (f.to == opposite[k] || f.from == opposite[k])) at_b = &f;
-      folds = at_a && at_b && folded(at_a->n_new, at_b->n_new);
+        if (f.to == opposite[k] || f.from == opposite[k]) at_b = &f;
+      folds = at_a && at_b && folded(at_a->normal, at_b->normal);
     }
-    if (folds && !any_fan_pair([&](const Scratch::FanFace& fi, const Scratch::FanFace& fj) {
-          return folded(fi.n_old, fj.n_old);
-        }))
-      return false;
+    if (!folds) return true;
+    // Rarely reached: was any pair of a's or b's faces folded before?
+    for (const std::span<const uint32_t> corners : {corners_a, corners_b})
+      for (uint32_t ci : corners) {
+        const auto& ti = fv_[ci / 3];
+        for (uint32_t cj : corners) {
+          const auto& tj = fv_[cj / 3];
+          if (ti[kNextSlot[ci % 3]] != tj[kPrevSlot[cj % 3]]) continue;
+          if (folded(triangle_normal(pos_[ti[0]], pos_[ti[1]], pos_[ti[2]]),
+                     triangle_normal(pos_[tj[0]], pos_[tj[1]], pos_[tj[2]])))
+            return true;
+          break;
+        }
+      }
+    return false;
   }
   return true;
 }
