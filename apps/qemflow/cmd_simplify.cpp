@@ -313,9 +313,9 @@ void add_simplify_command(CLI::App& root, Run& run) {
       ->capture_default_str()
       ->check(CLI::Range(0.0, 64.0));
   cmd->add_option("--charge-from", args->epochs.charge_from,
-                  "weigh the deviation charge (--deviation-weight) once an epoch begins with at most "
-                  "this many times the target faces; before, an edge costs its quadric error alone "
-                  "(about half the CPU); 0: from the start")
+                  "weigh the deviation charge (--deviation-weight) from the summary after an epoch "
+                  "that began with at most this many times the target faces; before, an edge costs its "
+                  "quadric error alone (about half the CPU); 0: from the start")
       ->capture_default_str()
       ->check(finite_in(0.0, 1e12));
   cmd->add_option("--min-normal-cos", args->params.min_normal_cos,
@@ -323,8 +323,8 @@ void add_simplify_command(CLI::App& root, Run& run) {
       ->capture_default_str()
       ->check(finite_in(-1.0, 1.0));
   cmd->add_option("--new-fold-cos", args->params.new_fold_cos,
-                  "tuning: a collapse may not leave two faces that share an edge with normals' cosine "
-                  "below this where the faces around it had no such pair (-1: off)")
+                  "tuning: a collapse may not leave two faces that share an edge at the kept vertex with "
+                  "normals' cosine below this where the faces around it had no such pair (-1: off)")
       ->capture_default_str()
       ->check(finite_in(-1.0, 1.0));
   cmd->add_option("--min-face-quality", args->params.min_face_quality,

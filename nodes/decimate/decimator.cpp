@@ -749,7 +749,7 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
   // Geometry: no face may flip or become (more) degenerate...
   const double fold_limit = params_.new_fold_cos;
   for (int side = 0; side < 2; ++side) {
-    const uint32_t moved = side ? b : a, other = side ? a : b;
+    const uint32_t other = side ? a : b;
     auto& fan = s.fold[side];
     fan.clear();
     for (uint32_t c : side ? corners_b : corners_a) {
@@ -772,7 +772,8 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
     }
   }
   // ...nor fold two faces onto each other where nothing was folded: faces that share an
-  // edge after the collapse may not have normals whose cosine is below new_fold_cos
+  // edge at the kept vertex after the collapse (within a's or b's fan, or across (p, c)
+  // for an opposite vertex c) may not have normals whose cosine is below new_fold_cos
   // unless a's or b's fan held such a pair before. Per-face turns of up to 78 degrees do
   // not bound it: over several collapses they folded a face back onto its neighbours
   // (28 runs on generated meshes, bench/flips.sh: 29 flipped faces, 8 with this check).
@@ -783,7 +784,9 @@ bool PatchDecimator::collapse_valid(uint32_t a, std::span<const uint32_t> corner
     const double limit2 = fold_limit * fold_limit;
     auto folded = [&](const Vec3& x, const Vec3& y) {
       const double d = dot(x, y);
-      if (fold_limit <= 0.0) return d < 0.0 && d * d > limit2 * dot(x, x) * dot(y, y);
+      // Symmetric in x and y to the bit (the product of the lengths first): both ends of
+      // an edge must find the same validity.
+      if (fold_limit <= 0.0) return d < 0.0 && d * d > limit2 * (dot(x, x) * dot(y, y));
       const double lengths = dot(x, x) * dot(y, y);
       return lengths > 0.0 && d < fold_limit * std::sqrt(lengths);
     };

@@ -118,9 +118,10 @@ inline constexpr uint64_t kBestNone = ~uint64_t{0} - 1;   // exact: no valid edg
 struct DecimateParams {
   // A collapse is invalid when a face normal turns so that cos(angle) < this.
   double min_normal_cos = 0.2;
-  // A collapse is invalid when two faces that share an edge afterwards fold onto each
-  // other (their normals' cosine is below this) where neither endpoint's fan held such a
-  // pair before. -1 turns the check off.
+  // A collapse is invalid when two faces that share an edge at the kept vertex afterwards
+  // fold onto each other (their normals' cosine is below this) where neither endpoint's
+  // fan held such a pair before. -1 turns the check off. (A moved face and the unmoved
+  // one across its outer edge are not compared: that reads two rings.)
   double new_fold_cos = -0.5;
   // A face is degenerate when |cross| / (longest edge)^2 (about the sine of its
   // smallest angle) is below this; collapses may not create one (nor make one worse).

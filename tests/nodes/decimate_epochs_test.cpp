@@ -120,7 +120,8 @@ struct Simulation {
   // The patches' work skipped at frozen vertices (PatchDecimator::frozen_refreshes,
   // frozen_collapses), and the refreshes they ran, summed over every patch built.
   uint64_t frozen_refreshes = 0, frozen_collapses = 0, patch_refreshes = 0;
-  // Epochs whose summary weighed the deviation charge (EpochOptions::charge_from).
+  // Epoch attempts (halo retries included) whose summary weighed the deviation charge
+  // (EpochOptions::charge_from).
   uint64_t charged_epochs = 0;
 
   void run_plan(std::span<PatchDecimator* const> ds, const EpochPlan& plan,
@@ -516,11 +517,6 @@ TEST(DecimateEpochs, FlatCandidatesKeepTheSlowRise) {
   EXPECT_EQ(epoch_cut_rise(s, fixed), 0.25);
 }
 
-// Out of core, each patch sends exact_cut only its share of its candidates; the cut
-// must be the one the whole lists give. The hand-made case is the end game that broke
-// out of core (one face to go, a two-face candidate first): a share without the
-// two-face candidate made the single-face one look next in order, and the cut at its
-// key took every candidate before it.
 TEST(DecimateEpochs, SummaryParamsWeighTheChargeFromChargeFromTimesTheTarget) {
   EpochOptions options;
   options.charge_from = 3.0;
@@ -566,6 +562,11 @@ TEST(DecimateEpochs, TheChargeIsWeighedOnlyInTheLastStretch) {
               static_cast<unsigned long long>(last_stretch.charges));
 }
 
+// Out of core, each patch sends exact_cut only its share of its candidates; the cut
+// must be the one the whole lists give. The hand-made case is the end game that broke
+// out of core (one face to go, a two-face candidate first): a share without the
+// two-face candidate made the single-face one look next in order, and the cut at its
+// key took every candidate before it.
 TEST(DecimateEpochs, ExactCutOfThePatchesSharesIsTheExactCutOfTheirWholeLists) {
   auto candidate = [](double cost, uint64_t gid, uint32_t faces) {
     Candidate c;
