@@ -863,21 +863,33 @@ void PatchDecimator::refresh_best(uint32_t v, Scratch& s, bool near_touched_only
   const bool charged = params_.deviation_weight > 0.0;
   for (const auto& [w, corner, twin] : s.fan()) {
     if (immovable(w) || (near_touched_only && !touched_[w])) continue;
+    // Built in place, field by field: a braced temporary was assembled on the stack
+    // from 8-byte stores and copied with 16-byte loads, which cannot be forwarded from
+    // those stores (a stall per option); the position likewise.
+    Scratch::Option& o = s.options.emplace_back();
     // Unknown costs start from their quadric part, a lower bound of the cost: the
     // deviation part is computed only for options that could still win.
     // A cached quadric part needs no position until the option is charged.
-    Vec3 position{};
     const CachedCost known = cached_cost(v, w, corner, twin);
-    const bool exact = known.full || !charged;
     bool has_position = false;
     double cost = known.cost;
     if (std::isnan(cost)) {
-      cost = quadric_cost(v, w, corner, twin, position);
+      cost = quadric_cost(v, w, corner, twin, o.position);
       has_position = true;
     }
-    if (cost == kSkipEdge) continue;
     const EdgeKey key = EdgeKey::of(cost, vgid_[v], vgid_[w]);
-    if (key < bound) s.options.push_back({key, w, corner, twin, exact, has_position, position});
+    if (cost == kSkipEdge || !(key < bound)) {
+      s.options.pop_back();
+      continue;
+    }
+    o.key.cost = key.cost;
+    o.key.gid_lo = key.gid_lo;
+    o.key.gid_hi = key.gid_hi;
+    o.other = w;
+    o.corner = corner;
+    o.twin = twin;
+    o.exact = known.full || !charged;
+    o.has_position = has_position;
   }
   // The smallest valid key. An option whose key is only a lower bound gets its exact
   // cost when it is the smallest left; an exact one is checked for validity when it is
