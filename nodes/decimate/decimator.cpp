@@ -1220,6 +1220,14 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
   parallel_over_with(nv, scratch, [&](size_t vi, Scratch& s) {
     if (!touched_[vi]) return;
     const uint32_t v = static_cast<uint32_t>(vi);
+    // The cost resets below read v's faces' rows of corner_cost_, whose addresses need
+    // no face read: start those loads now, under compact_list's and update_border's.
+    if (charged)
+      for (uint32_t c : corners_of(v)) {
+        const double* row = &corner_cost_[c - c % 3];
+        __builtin_prefetch(row);
+        __builtin_prefetch(row + 2);
+      }
     const bool was_above = adj_count_[v] > kMaxCollapseDegree;  // (dead faces counted too)
     compact_list(v);
     if (was_above && adj_count_[v] <= kMaxCollapseDegree && !degree_fell.load(std::memory_order_relaxed))
