@@ -2,6 +2,7 @@
 // same doubles as the formulas they replaced, on random inputs that reach every branch.
 // The references below are the replaced code, verbatim (decimator.hpp's contract: any
 // reformulation of the arithmetic would change the output).
+#include <Eigen/Dense>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -227,6 +228,47 @@ TEST(DecimateKernels, EveryKernelVersionGivesTheSameBitsAsTheOthers) {
   if (__builtin_cpu_supports("avx512f")) {
     EXPECT_EQ(versions, 3);
   }
+}
+
+// collapse_position's fast path as it was, with Eigen (the fallback is unchanged).
+Vec3 reference_position(const Quadric& Q, const Vec3& lo, const Vec3& hi) {
+  const auto& q = Q.q;
+  Eigen::Matrix3d A;
+  A << q[0], q[1], q[2], q[1], q[3], q[4], q[2], q[4], q[5];
+  const Eigen::Vector3d b(q[6], q[7], q[8]);
+  const double trace = q[0] + q[3] + q[5];
+  const double det = A.determinant();
+  if (trace > 0.0 && det > 1e-7 * trace * trace * trace) {
+    const Eigen::Vector3d x = A.inverse() * (-b);
+    return {x[0], x[1], x[2]};
+  }
+  return collapse_position(Q, lo, hi);  // the fallback's or the midpoint's
+}
+
+TEST(DecimateKernels, CollapsePositionIsEigensInverseBitForBit) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0), exponent(-10.0, 10.0);
+  int fast = 0;
+  for (int i = 0; i < 200000; ++i) {
+    Quadric Q;
+    if (i % 3 == 0) {  // any symmetric matrix, scaled
+      for (double& x : Q.q) x = unit(rng) * std::pow(10.0, exponent(rng));
+    } else {  // a sum of 1-5 weighted planes, as the decimator builds them
+      const int planes = 1 + static_cast<int>(rng() % 5);
+      for (int k = 0; k < planes; ++k) {
+        Vec3 n{unit(rng), unit(rng), unit(rng)};
+        const double len = std::sqrt(dot(n, n));
+        n = {n[0] / len, n[1] / len, n[2] / len};
+        Q += plane_quadric(n, {unit(rng), unit(rng), unit(rng)}, std::pow(10.0, exponent(rng)));
+      }
+    }
+    const Vec3 lo{unit(rng), unit(rng), unit(rng)}, hi{unit(rng), unit(rng), unit(rng)};
+    const Vec3 got = collapse_position(Q, lo, hi), want = reference_position(Q, lo, hi);
+    for (int c = 0; c < 3; ++c) ASSERT_EQ(bits(got[c]), bits(want[c])) << "case " << i << " coordinate " << c;
+    const double trace = Q.q[0] + Q.q[3] + Q.q[5];
+    fast += trace > 0.0 && std::isfinite(got[0]) && got != Vec3{0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])};
+  }
+  EXPECT_GT(fast, 100000);  // most cases take the fast path
 }
 
 }  // namespace
