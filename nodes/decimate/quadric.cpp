@@ -63,23 +63,24 @@ Vec3 collapse_position(const Quadric& Q, const Vec3& lo, const Vec3& hi) {
   // Fast path: a clearly invertible A. det / trace^3 is about the product of the two
   // smaller eigenvalue ratios, so a small value flags a flat or crease-like quadric.
   // Written out, Eigen 3.4's A.determinant() and A.inverse() * (-b) for this symmetric
-  // A, operation for operation (cofactors, det from the first column's, rows 0-1 of the
-  // product summed left to right as its packets do, row 2 as its redux, p0 + (p1 + p2)):
-  // the same bits on every finite input (NaNs aside: their payloads may differ, and a
-  // non-finite position is skipped either way); Eigen's product was not inlined here.
-  const double det = q[0] * (q[3] * q[5] - q[4] * q[4]) - q[1] * (q[1] * q[5] - q[4] * q[2]) +
-                     q[2] * (q[1] * q[4] - q[3] * q[2]);
+  // A, operation for operation (cofactors, the inverse's det from the first column's,
+  // rows 0-1 of the product summed left to right as its packets do, row 2 as its redux,
+  // p0 + (p1 + p2)): the same bits on every finite input (NaNs aside: their payloads may
+  // differ, and a non-finite position is skipped either way); Eigen's product was not
+  // inlined here. A is symmetric, so its cofactors are too, to the bit (the same
+  // products, commuted), and determinant()'s own sum equals the inverse's wherever it is
+  // positive (x - (-y) is x + y; only a zero's sign may differ): one det serves both.
+  const double c00 = q[3] * q[5] - q[4] * q[4], c01 = q[4] * q[2] - q[5] * q[1],
+               c02 = q[1] * q[4] - q[2] * q[3];
+  const double det = (c00 * q[0] + c01 * q[1]) + c02 * q[2];
   if (det > 1e-7 * trace * trace * trace) {
-    const double c00 = q[3] * q[5] - q[4] * q[4], c10 = q[4] * q[2] - q[5] * q[1],
-                 c20 = q[1] * q[4] - q[2] * q[3];
-    const double inv = 1.0 / ((c00 * q[0] + c10 * q[1]) + c20 * q[2]);
-    const double r00 = c00 * inv, r01 = c10 * inv, r02 = c20 * inv;
-    const double r10 = (q[4] * q[2] - q[1] * q[5]) * inv, r11 = (q[5] * q[0] - q[2] * q[2]) * inv,
-                 r12 = (q[2] * q[1] - q[0] * q[4]) * inv;
-    const double r20 = (q[1] * q[4] - q[3] * q[2]) * inv, r21 = (q[2] * q[1] - q[4] * q[0]) * inv,
-                 r22 = (q[0] * q[3] - q[1] * q[1]) * inv;
+    const double c11 = q[5] * q[0] - q[2] * q[2], c12 = q[2] * q[1] - q[0] * q[4],
+                 c22 = q[0] * q[3] - q[1] * q[1];
+    const double inv = 1.0 / det;
+    const double r00 = c00 * inv, r01 = c01 * inv, r02 = c02 * inv, r11 = c11 * inv, r12 = c12 * inv,
+                 r22 = c22 * inv;
     const double b0 = -q[6], b1 = -q[7], b2 = -q[8];
-    return {(r00 * b0 + r01 * b1) + r02 * b2, (r10 * b0 + r11 * b1) + r12 * b2, r20 * b0 + (r21 * b1 + r22 * b2)};
+    return {(r00 * b0 + r01 * b1) + r02 * b2, (r01 * b0 + r11 * b1) + r12 * b2, r02 * b0 + (r12 * b1 + r22 * b2)};
   }
   Eigen::Matrix3d A;
   A << q[0], q[1], q[2], q[1], q[3], q[4], q[2], q[4], q[5];
