@@ -29,8 +29,10 @@ for RUN in "${RUNS[@]}"; do
   "$QEMFLOW" gen "$WORK/in.ply" --faces "$FACES" --quiet >&2
   echo "simplify to 1% at --mem-budget $BUDGET..." >&2
   LOAD=$(cut -d' ' -f1 /proc/loadavg)
+  # SIMPLIFY_ARGS is split into words on purpose.
+  # shellcheck disable=SC2086
   "$QEMFLOW" simplify "$WORK/in.ply" "$WORK/out.ply" --ratio 0.01 --mem-budget "$BUDGET" --scratch "$WORK" \
-    --report "$WORK/report.json" --quiet ${SIMPLIFY_ARGS:-}  # shellcheck disable=SC2086
+    --report "$WORK/report.json" --quiet ${SIMPLIFY_ARGS:-}
   /usr/bin/python3 - "$WORK/report.json" "$FACES" "$BUDGET" "$LOAD" "${SIMPLIFY_ARGS:-}" <<'PY'
 import json, sys
 r = json.load(open(sys.argv[1]))
