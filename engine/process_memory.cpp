@@ -75,6 +75,16 @@ const void* release_pages(const void* begin, const void* end) {
   return reinterpret_cast<const void*>(to);
 }
 
+void populate_pages(void* begin, void* end) {
+#ifdef MADV_POPULATE_WRITE
+  static const uintptr_t page = uintptr_t(sysconf(_SC_PAGESIZE));
+  const uintptr_t from = (uintptr_t(begin) + page - 1) & ~(page - 1), to = uintptr_t(end) & ~(page - 1);
+  if (to > from) madvise(reinterpret_cast<void*>(from), to - from, MADV_POPULATE_WRITE);
+#else
+  (void)begin, (void)end;
+#endif
+}
+
 void advise_huge_pages(const void* begin, const void* end) {
   const auto [from, to] = whole_pages(begin, end, 2 << 20);
   if (to <= from) return;

@@ -64,6 +64,12 @@ void trim_allocator();
 // buffer is released front to back (no page straddling two calls is left behind).
 const void* release_pages(const void* begin, const void* end);
 
+// Faults in the whole pages inside [begin, end) of a buffer about to be filled, in one
+// call (madvise MADV_POPULATE_WRITE): the kernel zeroes them all the same, but without a
+// page-fault exception apiece. Advice: refused (kernels before 5.14), they fault in as
+// they are touched.
+void populate_pages(void* begin, void* end);
+
 // Asks for transparent huge pages over the whole 2 MiB pages inside [begin, end) of a
 // buffer not yet touched (madvise MADV_HUGEPAGE; advice: refused, the buffer keeps
 // small pages). For big arrays read at random (vertex positions by index): a 4 KiB
