@@ -38,6 +38,21 @@ class PlyReader final : public MeshReader {
   uint64_t bytes_read() const override { return source_.file_bytes_read(); }
 
   bool next(MeshBatch& batch, size_t max_elements) override {
+    if (header_.format != MeshFormat::ply_ascii) return next_records(batch, max_elements);
+    try {
+      return next_records(batch, max_elements);
+    } catch (const Error& e) {
+      // The reader takes values wherever they are, so a line short of values (or with
+      // too many) shows up records later, where the shifted values stop making sense:
+      // the message names the first record that did not end on its own line too.
+      if (ascii_misaligned_.empty()) throw;
+      throw Error(e.kind(), std::string(e.what()) + " (" + ascii_misaligned_ +
+                                ": a line with too few or too many values?)");
+    }
+  }
+
+ private:
+  bool next_records(MeshBatch& batch, size_t max_elements) {
     batch.clear();
     batch.first_vertex = vertices_out_;
     batch.first_triangle = triangles_out_;
@@ -74,13 +89,13 @@ class PlyReader final : public MeshReader {
     return !batch.vertices.empty() || !batch.triangles.empty();
   }
 
- private:
   // After the last element, whitespace at most (ply_binary::check_trailing_bytes).
   void check_trailing() {
     trailing_checked_ = true;
     const PlyElement& last = header_.elements.back();
     if (header_.format == MeshFormat::ply_ascii) {
       std::string_view token;
+      begin_ascii_record(last, last.count);  // a token after the last record is no part of it
       if (next_token(token)) {
         throw_bad_input(name(), line_place(), data_after_last_element(last));
       }
@@ -387,8 +402,26 @@ class PlyReader final : public MeshReader {
       }
       token = std::string_view(p, i);
       token_line_ = line_;
+      note_ascii_record_line();
       source_.consume(i);
       return true;
+    }
+  }
+
+  // An ascii record is one line. The first record found on more than one line is
+  // remembered for the error messages (ascii_misaligned_); reading goes on, as other
+  // readers' does.
+  void begin_ascii_record(const PlyElement& element, uint64_t index) {
+    record_element_ = &element;
+    record_index_ = index;
+    record_line_ = 0;
+  }
+  void note_ascii_record_line() {
+    if (record_line_ == 0) {
+      record_line_ = token_line_;
+    } else if (token_line_ != record_line_ && ascii_misaligned_.empty() && record_element_) {
+      ascii_misaligned_ = record_name(*record_element_, record_index_) + " starts on line " +
+                          std::to_string(record_line_) + " and ends on line " + std::to_string(token_line_);
     }
   }
 
@@ -442,6 +475,7 @@ class PlyReader final : public MeshReader {
 
   void ascii_skip(const PlyElement& element) {
     for (; done_ < element.count; ++done_) {
+      begin_ascii_record(element, done_);
       for (const auto& property : element.properties) ascii_skip_property(element, property);
     }
   }
@@ -449,6 +483,7 @@ class PlyReader final : public MeshReader {
   void ascii_vertices(size_t budget, MeshBatch& batch) {
     const PlyElement& element = header_.elements[header_.vertex_element];
     while (done_ < element.count && batch.vertices.size() < budget) {
+      begin_ascii_record(element, done_);
       Point point{};
       for (size_t i = 0; i < element.properties.size(); ++i) {
         const PlyProperty& property = element.properties[i];
@@ -474,6 +509,7 @@ class PlyReader final : public MeshReader {
   void ascii_faces(size_t budget, MeshBatch& batch) {
     const PlyElement& element = header_.elements[*header_.face_element];
     while (done_ < element.count && (ascii_property_ > 0 || !full(batch, budget))) {
+      if (ascii_property_ == 0 && !in_list_) begin_ascii_record(element, done_);
       for (; ascii_property_ < element.properties.size(); ++ascii_property_) {
         const PlyProperty& property = element.properties[ascii_property_];
         if (ascii_property_ != header_.index_property) {
@@ -509,6 +545,12 @@ class PlyReader final : public MeshReader {
   uint64_t done_ = 0;      // records of it already read
   uint64_t line_ = 0;      // ascii: current line
   uint64_t token_line_ = 0;  // ascii: line of the last token read (what errors name)
+  // ascii: the record being read, the line of its first token (0: none read yet), and
+  // the first record that was not on one line ("" while none).
+  const PlyElement* record_element_ = nullptr;
+  uint64_t record_index_ = 0;
+  uint64_t record_line_ = 0;
+  std::string ascii_misaligned_;
   uint64_t vertices_out_ = 0;
   uint64_t triangles_out_ = 0;
   // The polygon being read: its fan, and for one cut by a batch's end (ascii) or

@@ -235,6 +235,24 @@ TEST(BadInput, AsciiErrorsNameTheLine) {
   expect_bad(ascii_ply("0 0 0\n1 0 0\n0 1 0\n3 0 1.5 2\n"), "a.ply", "line 14: vertex index '1.5' is not an integer");
 }
 
+// Values are taken wherever they are, so a line short of values shifts every value
+// after it and the error surfaces records later; the message also names the first
+// record that did not fit its line.
+TEST(BadInput, AsciiErrorsNameTheFirstRecordNotOnItsOwnLine) {
+  expect_bad(ascii_ply("0 0 0\n1 0\n0 1 0\n3 0 1 2\n"), "a.ply",
+             "line 14: face 0 has 0 vertices (a face needs at least 3) (vertex 1 of 3 starts on line 12 and ends on "
+             "line 13: a line with too few or too many values?)");
+  // Too many: the extra value starts the next record.
+  expect_bad(ascii_ply("0 0 0 7\n1 0 0\n0 1 0\n3 0 1 2\n"), "a.ply", "(vertex 1 of 3 starts on line 11 and ends on line 12");
+  // Errors on well-formed lines carry no such note.
+  TempDir dir;
+  testing::write_bytes(dir / "a.ply", ascii_ply("0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n"));
+  EXPECT_EQ(testing::bad_input_message(dir / "a.ply").find("starts on line"), std::string::npos);
+  // A record across lines with the right values is read, as other readers read it.
+  testing::write_bytes(dir / "w.ply", ascii_ply("0 0\n0\n1 0 0\n0 1 0\n3 0 1\n2\n"));
+  EXPECT_EQ(testing::read_in_batches(dir / "w.ply", 3).triangles.size(), 1u);
+}
+
 TEST(BadInput, CorruptedZstd) {
   BinaryPly ply = binary_ply();
   std::string packed = testing::zstd_compress(ply.bytes());
