@@ -328,6 +328,10 @@ void RoundSummary::add(const RoundSummary& other) {
 
 struct PatchDecimator::Scratch {
   std::vector<uint32_t> fb, faces;
+  struct FaceNormal {
+    Vec3 normal, unit;
+  };
+  std::vector<FaceNormal> face_normals;  // compute_quadrics: per entry of `faces`
   std::vector<uint64_t> pairs;
   std::vector<Neighbor> neighbors;
   struct Option {
@@ -654,23 +658,26 @@ void PatchDecimator::compute_quadrics() {
     // v's faces in ascending global id: the canonical order of every per-vertex sum.
     gather_faces(v, s.faces);
     std::sort(s.faces.begin(), s.faces.end(), [&](uint32_t f, uint32_t g) { return fgid_[f] < fgid_[g]; });
+    // Each face's normal and unit normal, once: the face quadrics and the fold test
+    // read them, and the face across an edge at v is one of v's faces too.
+    s.face_normals.resize(s.faces.size());
     Quadric q;
-    for (uint32_t f : s.faces) {
-      const auto& t = fv_[f];
-      q += face_quadric(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
+    for (size_t i = 0; i < s.faces.size(); ++i) {
+      const auto& t = fv_[s.faces[i]];
+      const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
+      const double len = std::sqrt(dot(n, n));
+      s.face_normals[i] = {n, len > 0.0 ? Vec3{n[0] / len, n[1] / len, n[2] / len} : Vec3{0, 0, 0}};
+      q += face_quadric_of_normal(n, pos_[t[0]]);
     }
     neighbor_faces(v, s.faces, fv_, s.pairs, s.neighbors);
     auto neighbor_of = [&](uint32_t w) {
       return *std::lower_bound(s.neighbors.begin(), s.neighbors.end(), w,
                                [](const Neighbor& x, uint32_t y) { return x.vertex < y; });
     };
-    auto unit = [](Vec3 n) {
-      const double len = std::sqrt(dot(n, n));
-      return len > 0.0 ? Vec3{n[0] / len, n[1] / len, n[2] / len} : Vec3{0, 0, 0};
-    };
-    for (uint32_t f : s.faces) {
+    for (size_t i = 0; i < s.faces.size(); ++i) {
+      const uint32_t f = s.faces[i];
       const auto& t = fv_[f];
-      const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
+      const Vec3& n = s.face_normals[i].normal;
       for (int k = 0; k < 3; ++k) {
         const uint32_t p = t[k], r = t[(k + 1) % 3];
         if (p != v && r != v) continue;
@@ -678,12 +685,10 @@ void PatchDecimator::compute_quadrics() {
         const Neighbor nw = neighbor_of(w);  // w is in f: listed
         bool constrain = nw.count == 1;
         if (nw.count == 2) {
-          // The edge's other face.
-          const uint32_t g0 = s.faces[static_cast<uint32_t>(s.pairs[nw.first])];
-          const uint32_t g = g0 != f ? g0 : s.faces[static_cast<uint32_t>(s.pairs[nw.first + 1])];
-          const auto& u = fv_[g];
-          constrain = dot(unit(n), unit(triangle_normal(pos_[u[0]], pos_[u[1]], pos_[u[2]]))) <
-                      params_.fold_cos;
+          // The edge's other face (its index in s.faces).
+          const uint32_t g0 = static_cast<uint32_t>(s.pairs[nw.first]);
+          const uint32_t g = g0 != i ? g0 : static_cast<uint32_t>(s.pairs[nw.first + 1]);
+          constrain = dot(s.face_normals[i].unit, s.face_normals[g].unit) < params_.fold_cos;
         }
         if (constrain) q += boundary_quadric(pos_[p], pos_[r], n, params_.boundary_weight);
       }

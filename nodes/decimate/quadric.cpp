@@ -27,7 +27,10 @@ Quadric plane_quadric(const Vec3& n, const Vec3& point, double weight) {
 }
 
 Quadric face_quadric(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
-  const Vec3 n = cross(sub(p1, p0), sub(p2, p0));
+  return face_quadric_of_normal(cross(sub(p1, p0), sub(p2, p0)), p0);
+}
+
+Quadric face_quadric_of_normal(const Vec3& n, const Vec3& p0) {
   const double len = std::sqrt(dot(n, n));
   if (!(len > 0.0)) return {};
   const Vec3 unit{n[0] / len, n[1] / len, n[2] / len};

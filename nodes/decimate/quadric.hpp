@@ -30,6 +30,8 @@ Quadric plane_quadric(const Vec3& unit_normal, const Vec3& point, double weight)
 
 // Area-weighted plane quadric of triangle (p0,p1,p2); zero for a degenerate triangle.
 Quadric face_quadric(const Vec3& p0, const Vec3& p1, const Vec3& p2);
+// The same from the triangle's unnormalised normal (p1 - p0) x (p2 - p0), bit for bit.
+Quadric face_quadric_of_normal(const Vec3& normal, const Vec3& p0);
 
 // Boundary-preserving quadric of the border edge (p,q) of a face with (unnormalised)
 // normal `face_normal`: the plane through the edge perpendicular to the face,
