@@ -298,10 +298,13 @@ class FramePool {
 };
 
 using FrameUse = std::function<void(const FrameHeader&, Bytes& records, Lease& lease)>;
+// `read_once`: each frame's pages go back to the OS once it is read (ScratchStore::
+// discard), so the writes that follow reuse them rather than fault in fresh ones, and
+// no dirty page of a frame done with waits to be written back.
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size,
                     const FrameUse& transform, const FrameUse& sink, uint32_t out_record_size,
-                    bool ordered = false, bool in_place = false, FramePool* pool = nullptr);
+                    bool ordered = false, bool in_place = false, FramePool* pool = nullptr, bool read_once = false);
 
 // Loads vertices [window * store.window, +store.window) into `out` (resident or not).
 void load_vertex_window(Job& job, ScratchStore& scratch, const VertexStore& store, uint64_t window,

@@ -1976,7 +1976,7 @@ BlockGrid BlockGrid::around(const Point& min, const Point& max, uint32_t blocks)
 void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const char* owner,
                     const std::vector<FrameRef>& frames, uint32_t record_size, const FrameUse& transform,
                     const FrameUse& sink, uint32_t out_record_size, bool ordered, bool in_place,
-                    FramePool* pool) {
+                    FramePool* pool, bool read_once) {
   // The header and the payload are read apart, so that a raw payload is the records
   // themselves: no copy between the disk's bytes and the transform.
   struct FrameItem {
@@ -2030,6 +2030,7 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
     }
     item.records.resize(item.ref.bytes - frame_header_bytes);
     scratch.read(item.ref.file, item.ref.offset + frame_header_bytes, item.records.data(), item.records.size());
+    if (read_once) scratch.discard(item.ref.file, item.ref.offset, item.ref.bytes);
     job.stage(stage).bytes_read += item.ref.bytes;
     return true;
   };

@@ -833,7 +833,7 @@ uint64_t write_triangles(Job& job, ScratchStore& scratch, LoadedMesh& mesh, io::
       encode && mesh.block_record_size == ply_triangle_record_size ? 0
       : encode                                                     ? uint32_t(io::ply_triangle_bytes) + 1
                : is_triangle_record(mesh.block_record_size) ? uint32_t(sizeof(Triangle)) : 0,
-      false, encode && mesh.block_record_size == triangle32_record_size);
+      false, encode && mesh.block_record_size == triangle32_record_size, nullptr, /*read_once=*/true);
   job.io().drain();
   job.check();
   return written;
