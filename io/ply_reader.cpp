@@ -45,7 +45,7 @@ class PlyReader final : public MeshReader {
       // The reader takes values wherever they are, so a line short of values (or with
       // too many) shows up records later, where the shifted values stop making sense:
       // the message names the first record that did not end on its own line too.
-      if (ascii_misaligned_.empty()) throw;
+      if (ascii_misaligned_.empty() || e.kind() != ErrorKind::bad_input) throw;
       throw Error(e.kind(), std::string(e.what()) + " (" + ascii_misaligned_ +
                                 ": a line with too few or too many values?)");
     }

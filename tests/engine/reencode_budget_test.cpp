@@ -60,7 +60,8 @@ TEST(ReencodeBudget, TwentyMillionFacesStayUnder256MiBOfPeakRss) {
   if (const char* child = std::getenv("QEMFLOW_REENCODE_CHILD")) {
     // The child: the CLI's code path, then nothing else.
     std::string dir = child;
-    const std::string budget_name = std::getenv("QEMFLOW_REENCODE_BUDGET");
+    const char* budget_env = std::getenv("QEMFLOW_REENCODE_BUDGET");
+    const std::string budget_name = budget_env ? budget_env : "256";
     ReencodeCommand command;
     command.input = dir + "/in.ply";
     command.output = dir + "/out-" + budget_name + ".ply";
