@@ -248,6 +248,15 @@ TEST(BadInput, AsciiErrorsNameTheFirstRecordNotOnItsOwnLine) {
   TempDir dir;
   testing::write_bytes(dir / "a.ply", ascii_ply("0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n"));
   EXPECT_EQ(testing::bad_input_message(dir / "a.ply").find("starts on line"), std::string::npos);
+  // A polygon cut by a batch's end resumes on its own line: no note either (8 corners make
+  // 6 triangles, read here 3 elements at a time).
+  testing::write_bytes(dir / "p.ply",
+                       "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\n"
+                       "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                       "0 0 0\n1 0 0\n2 1 0\n2 2 0\n1 3 0\n0 3 0\n-1 2 0\n-1 1 0\n8 0 1 2 3 4 5 6 7\n3 0 1 9\n");
+  const std::string polygon_message = testing::bad_input_message(dir / "p.ply");
+  EXPECT_NE(polygon_message.find("line 19: face 1 has vertex index 9"), std::string::npos) << polygon_message;
+  EXPECT_EQ(polygon_message.find("starts on line"), std::string::npos) << polygon_message;
   // A record across lines with the right values is read, as other readers read it.
   testing::write_bytes(dir / "w.ply", ascii_ply("0 0\n0\n1 0 0\n0 1 0\n3 0 1\n2\n"));
   EXPECT_EQ(testing::read_in_batches(dir / "w.ply", 3).triangles.size(), 1u);
