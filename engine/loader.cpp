@@ -712,11 +712,9 @@ class Loader {
     // them but the block writer: 8/10. Holding them spares the out-of-core dereference's
     // scratch round trip (vertex windows, local faces: 2.5 GB of 3.8 at 100M faces), so a
     // budget that holds them gives the resident path's speed with blocks spilled.
-    const bool floats = resident_float_positions();
     const uint64_t resident_bytes =
-        info.vertex_count.value_or(0) *
-        (floats ? 3 * sizeof(float) : sizeof(Point) + (options_.weld ? sizeof(uint64_t) : 0));
-    const uint64_t resident_share = floats ? capacity_ * 8 / 10 : capacity_ * 6 / 10;
+        info.vertex_count.value_or(0) * (resident_position_bytes() + (options_.weld ? sizeof(uint64_t) : 0));
+    const uint64_t resident_share = resident_float_positions() ? capacity_ * 8 / 10 : capacity_ * 6 / 10;
     bool resident = info.vertex_count && !options_.force_out_of_core && resident_bytes <= resident_share &&
                     resident_bytes + BucketSpill::min_lease_bytes(sizeof(BlockFace)) <= reserve_.bytes();
     // Known before the load (a PLY's vertex count): refused up front, not after a pass
@@ -861,6 +859,7 @@ class Loader {
   // The re-encode of an input with float coordinates keeps them as floats when resident:
   // half the memory the face lookups wander over, and the output's vertices as they are.
   bool resident_float_positions() const { return verbatim_triangles() && input_.float_coordinates(); }
+  uint64_t resident_position_bytes() const { return resident_float_positions() ? 3 * sizeof(float) : sizeof(Point); }
   // Triangle-only records of the input's faces as they are (no weld, every face): the
   // lean path, without a BlockFace per face.
   bool verbatim_triangles() const {
@@ -1183,7 +1182,7 @@ class Loader {
   void load_resident(uint64_t vertex_count, uint64_t polygon_count) {
     progress_span_ = options_.degrees ? 0.4 : 0.8;
     const bool floats = resident_float_positions();
-    Lease vertex_lease = take("vertex positions", vertex_count * (floats ? 3 * sizeof(float) : sizeof(Point)));
+    Lease vertex_lease = take("vertex positions", vertex_count * resident_position_bytes());
     auto& positions = mesh_.vertices.resident;
     auto& xyz = mesh_.vertices.resident_xyz;
     if (floats) {

@@ -78,7 +78,7 @@ const void* release_pages(const void* begin, const void* end) {
 void populate_pages(void* begin, void* end) {
 #ifdef MADV_POPULATE_WRITE
   static const uintptr_t page = uintptr_t(sysconf(_SC_PAGESIZE));
-  const uintptr_t from = (uintptr_t(begin) + page - 1) & ~(page - 1), to = uintptr_t(end) & ~(page - 1);
+  const auto [from, to] = whole_pages(begin, end, page);
   if (to > from) madvise(reinterpret_cast<void*>(from), to - from, MADV_POPULATE_WRITE);
 #else
   (void)begin, (void)end;
