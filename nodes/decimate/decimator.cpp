@@ -329,7 +329,8 @@ void RoundSummary::add(const RoundSummary& other) {
 struct PatchDecimator::Scratch {
   std::vector<uint32_t> fb, faces;
   struct FaceNormal {
-    Vec3 normal, unit;
+    Vec3 normal;
+    TrianglePlane plane;
   };
   std::vector<FaceNormal> face_normals;  // compute_quadrics: per entry of `faces`
   std::vector<uint64_t> pairs;
@@ -665,9 +666,8 @@ void PatchDecimator::compute_quadrics() {
     for (size_t i = 0; i < s.faces.size(); ++i) {
       const auto& t = fv_[s.faces[i]];
       const Vec3 n = triangle_normal(pos_[t[0]], pos_[t[1]], pos_[t[2]]);
-      const double len = std::sqrt(dot(n, n));
-      s.face_normals[i] = {n, len > 0.0 ? Vec3{n[0] / len, n[1] / len, n[2] / len} : Vec3{0, 0, 0}};
-      q += face_quadric_of_normal(n, pos_[t[0]]);
+      s.face_normals[i] = {n, triangle_plane(n)};
+      q += face_quadric(s.face_normals[i].plane, pos_[t[0]]);
     }
     neighbor_faces(v, s.faces, fv_, s.pairs, s.neighbors);
     auto neighbor_of = [&](uint32_t w) {
@@ -688,7 +688,7 @@ void PatchDecimator::compute_quadrics() {
           // The edge's other face (its index in s.faces).
           const uint32_t g0 = static_cast<uint32_t>(s.pairs[nw.first]);
           const uint32_t g = g0 != i ? g0 : static_cast<uint32_t>(s.pairs[nw.first + 1]);
-          constrain = dot(s.face_normals[i].unit, s.face_normals[g].unit) < params_.fold_cos;
+          constrain = dot(s.face_normals[i].plane.unit, s.face_normals[g].plane.unit) < params_.fold_cos;
         }
         if (constrain) q += boundary_quadric(pos_[p], pos_[r], n, params_.boundary_weight);
       }

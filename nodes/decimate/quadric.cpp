@@ -27,14 +27,17 @@ Quadric plane_quadric(const Vec3& n, const Vec3& point, double weight) {
 }
 
 Quadric face_quadric(const Vec3& p0, const Vec3& p1, const Vec3& p2) {
-  return face_quadric_of_normal(cross(sub(p1, p0), sub(p2, p0)), p0);
+  return face_quadric(triangle_plane(cross(sub(p1, p0), sub(p2, p0))), p0);
 }
 
-Quadric face_quadric_of_normal(const Vec3& n, const Vec3& p0) {
+TrianglePlane triangle_plane(const Vec3& n) {
   const double len = std::sqrt(dot(n, n));
-  if (!(len > 0.0)) return {};
-  const Vec3 unit{n[0] / len, n[1] / len, n[2] / len};
-  return plane_quadric(unit, p0, 0.5 * len);
+  return {len > 0.0 ? Vec3{n[0] / len, n[1] / len, n[2] / len} : Vec3{0, 0, 0}, len};
+}
+
+Quadric face_quadric(const TrianglePlane& plane, const Vec3& p0) {
+  if (!(plane.length > 0.0)) return {};
+  return plane_quadric(plane.unit, p0, 0.5 * plane.length);
 }
 
 Quadric boundary_quadric(const Vec3& p, const Vec3& q, const Vec3& face_normal, double weight) {

@@ -30,8 +30,15 @@ Quadric plane_quadric(const Vec3& unit_normal, const Vec3& point, double weight)
 
 // Area-weighted plane quadric of triangle (p0,p1,p2); zero for a degenerate triangle.
 Quadric face_quadric(const Vec3& p0, const Vec3& p1, const Vec3& p2);
-// The same from the triangle's unnormalised normal (p1 - p0) x (p2 - p0), bit for bit.
-Quadric face_quadric_of_normal(const Vec3& normal, const Vec3& p0);
+// A triangle's plane from its unnormalised normal (p1 - p0) x (p2 - p0): the normal's
+// length (twice the area) and the unit normal (zero when the length is not positive).
+struct TrianglePlane {
+  Vec3 unit;
+  double length;
+};
+TrianglePlane triangle_plane(const Vec3& normal);
+// face_quadric(p0, p1, p2) from the triangle's plane, bit for bit.
+Quadric face_quadric(const TrianglePlane& plane, const Vec3& p0);
 
 // Boundary-preserving quadric of the border edge (p,q) of a face with (unnormalised)
 // normal `face_normal`: the plane through the edge perpendicular to the face,
