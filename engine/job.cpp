@@ -151,10 +151,16 @@ void Job::progress_span(double from, double to) {
   progress_to_ = to;
 }
 
-StageTimer::StageTimer(Job& job, const std::string& stage) : stage_(job.stage(stage)) {}
+StageTimer::StageTimer(Job& job, const std::string& stage)
+    : job_(job), stage_(job.stage(stage)), start_(job.activity().totals()), cpu_start_(process_cpu_seconds()) {}
 
 StageTimer::~StageTimer() {
-  stage_.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  const Activity::Totals end = job_.activity().totals();
+  stage_.seconds += end.wall_seconds - start_.wall_seconds;
+  stage_.cpu_seconds += process_cpu_seconds() - cpu_start_;
+  stage_.io_busy_seconds += end.io_busy_seconds - start_.io_busy_seconds;
+  stage_.compute_busy_seconds += end.compute_busy_seconds - start_.compute_busy_seconds;
+  stage_.overlap_seconds += end.overlap_seconds - start_.overlap_seconds;
 }
 
 StageStats& Job::stage(const std::string& name) {

@@ -70,10 +70,17 @@ struct JobSettings {
 };
 
 // Per-stage accounting for the report: wall time of the stage, bytes read and
-// written by its I/O, items processed.
+// written by its I/O, items processed, and what the job's Activity counted while the
+// stage ran: the process's CPU seconds (so cpu_seconds / seconds is the cores it
+// kept busy), the I/O thread's busy seconds, the compute threads' and both at once.
+// Stages must not nest (a StageTimer's scope holds no other): their sums are the run's.
 struct StageStats {
   std::string name;
   double seconds = 0;
+  double cpu_seconds = 0;
+  double io_busy_seconds = 0;
+  double compute_busy_seconds = 0;
+  double overlap_seconds = 0;
   std::atomic<uint64_t> bytes_read{0};
   std::atomic<uint64_t> bytes_written{0};
   std::atomic<uint64_t> items{0};
@@ -114,8 +121,10 @@ class StageTimer {
   StageTimer& operator=(const StageTimer&) = delete;
 
  private:
+  Job& job_;
   StageStats& stage_;
-  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+  Activity::Totals start_;
+  double cpu_start_;
 };
 
 class Job {

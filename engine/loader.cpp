@@ -1201,7 +1201,9 @@ class Loader {
     Lease block_lease = spill_lease("block writer", 0.3, sizeof(BlockFace));
     uint64_t vertices_seen = 0;
 
-    StageTimer timer(job_, "load");
+    // The read passes are the "load" stage; the weld and the degrees between them time
+    // themselves (stages do not nest).
+    std::optional<StageTimer> timer(std::in_place, job_, "load");
     // Pass A: vertices, copied in place (batches hold disjoint index ranges).
     auto vertex_pass = input_pass(&InputStream::read_vertices);
     // The positions of a float PLY go to `xyz` as decoded; only their box is left.
@@ -1238,10 +1240,14 @@ class Loader {
       throw_bad_input(input_.path.string(), "end of vertices",
                       "truncated: " + std::to_string(vertices_seen) + " of " + std::to_string(vertex_count) + " vertices");
     }
+    timer.reset();
     weld_in_memory(positions, std::move(weld_order_lease));
     if (options_.degrees) {
       count_degrees_from_input(vertex_count);
+      timer.emplace(job_, "load");
       reopen_input_past_vertices();
+    } else {
+      timer.emplace(job_, "load");
     }
     const uint32_t record_size = choose_block_layout();
     // A PLY's face count counts polygons: an input with quads or larger polygons has

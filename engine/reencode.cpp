@@ -913,7 +913,8 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     load.ply_triangle_records = !io::mesh_file_kind(options.output).obj;
     LoadedMesh mesh = load_into_blocks(job, scratch, options.input, load, hooks);
     open_output(mesh);
-    StageTimer timer(job, "write");
+    // Ended before the report is made, which reads the stage's totals.
+    std::optional<StageTimer> timer(std::in_place, job, "write");
     const bool blocks_in_memory = mesh.blocks_resident();
     write_vertices(job, scratch, mesh, *writer);
     release_memory(mesh.vertices.resident);
@@ -931,6 +932,7 @@ ReencodeResult run_reencode(Governor& governor, const ReencodeOptions& options, 
     }
     job.io().call("commit output", [&] { writer->commit(); });
     job.stage("write").bytes_written = writer->bytes_written();
+    timer.reset();
     job.progress(1.0, "done");
 
     result.vertices = mesh.vertex_count;

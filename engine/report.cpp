@@ -32,6 +32,10 @@ nlohmann::json job_report(Job& job, const Governor& governor) {
   for (const StageStats* s : job.stages()) {
     stages.push_back({{"name", s->name},
                       {"seconds", s->seconds},
+                      {"cpu_seconds", s->cpu_seconds},
+                      {"io_busy_seconds", s->io_busy_seconds},
+                      {"compute_busy_seconds", s->compute_busy_seconds},
+                      {"overlap_seconds", s->overlap_seconds},
                       {"bytes_read", s->bytes_read.load()},
                       {"bytes_written", s->bytes_written.load()},
                       {"items", s->items.load()}});

@@ -753,6 +753,28 @@ TEST(Reencode, TraceParsesAndHoldsTheIoThreadsSpansAndCounters) {
   std::set<std::string> stages;
   for (const auto& s : report["stages"]) stages.insert(s["name"].get<std::string>());
   for (const char* s : {"load", "resolve", "write"}) EXPECT_TRUE(stages.count(s)) << s;
+  // Every stage's activity is its own share of the run's: the stages do not nest, and
+  // the write stage's timer ends before the report reads it (it used to say 0 s).
+  double seconds = 0, cpu = 0, io = 0, overlap = 0;
+  for (const auto& s : report["stages"]) {
+    const double stage_seconds = s["seconds"].get<double>();
+    EXPECT_LE(s["io_busy_seconds"].get<double>(), stage_seconds + 1e-6) << s["name"];
+    EXPECT_LE(s["overlap_seconds"].get<double>(),
+              std::min(s["io_busy_seconds"].get<double>(), s["compute_busy_seconds"].get<double>()) + 1e-6)
+        << s["name"];
+    if (s["name"] == "write") {
+      EXPECT_GT(stage_seconds, 0.0);
+      EXPECT_GT(s["io_busy_seconds"].get<double>(), 0.0);  // the output's writes
+    }
+    seconds += stage_seconds;
+    cpu += s["cpu_seconds"].get<double>();
+    io += s["io_busy_seconds"].get<double>();
+    overlap += s["overlap_seconds"].get<double>();
+  }
+  EXPECT_LE(seconds, report["wall_seconds"].get<double>());
+  EXPECT_LE(cpu, report["cpu_seconds"].get<double>() + 0.01);  // two clocks: rusage and CLOCK_PROCESS_CPUTIME_ID
+  EXPECT_LE(io, report["io_busy_seconds"].get<double>() + 1e-6);
+  EXPECT_LE(overlap, report["overlap_seconds"].get<double>() + 1e-6);
   bool block_writer = false;
   for (const auto& n : report["nodes"]) {
     if (n["name"] == "block writer") block_writer = n["peak_bytes"].get<uint64_t>() > 0;
