@@ -45,6 +45,11 @@ print(f"{sys.argv[2]},{sys.argv[3]},{r['output_faces']},{r['patches']},{r['epoch
       f"{r['in_core_faces']},{r['halo_redos']},{patch:.2f},{gathered:.2f},{wall:.1f},{r['cpu_seconds']:.1f},"
       f"{sys.argv[4]},{r['peak_rss_bytes'] / 2**20:.0f},{ok},{r['input_faces'] / wall:.0f},"
       f"{r['scratch_bytes_read'] / 2**20:.0f},{r['scratch_bytes_written'] / 2**20:.0f},{sys.argv[5]}")
+# Where the time went (stderr, beside the CSV): each stage's wall seconds, the cores its
+# CPU seconds kept busy, and the share of it the I/O thread was busy.
+parts = [f"{s['name']} {s['seconds']:.1f} s ({s['cpu_seconds'] / s['seconds']:.2f} cores, I/O {100 * s['io_busy_seconds'] / s['seconds']:.0f}%)"
+         for s in r["stages"] if s["seconds"] >= 0.05]
+print("stages: " + ", ".join(parts), file=sys.stderr)
 PY
   rm -f "$WORK/in.ply" "$WORK/out.ply"
 done
