@@ -152,9 +152,15 @@ void Job::progress_span(double from, double to) {
 }
 
 StageTimer::StageTimer(Job& job, const std::string& stage)
-    : job_(job), stage_(job.stage(stage)), start_(job.activity().totals()), cpu_start_(process_cpu_seconds()) {}
+    : job_(job), stage_(job.stage(stage)), start_(job.activity().totals()), cpu_start_(process_cpu_seconds()) {
+  if (job.timed_stage_) {
+    throw Error(ErrorKind::internal, "stage \"" + stage + "\" timed inside stage \"" + job.timed_stage_->name + "\"");
+  }
+  job.timed_stage_ = &stage_;
+}
 
 StageTimer::~StageTimer() {
+  job_.timed_stage_ = nullptr;
   const Activity::Totals end = job_.activity().totals();
   stage_.seconds += end.wall_seconds - start_.wall_seconds;
   stage_.cpu_seconds += process_cpu_seconds() - cpu_start_;

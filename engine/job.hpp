@@ -112,7 +112,10 @@ class SoleJobPeakWindow {
   uint64_t started_ = 0;
 };
 
-// Adds the wall time of a scope to a stage (the pipeline's top-level phases).
+// Adds a scope's wall time and activity to a stage (the pipeline's top-level phases,
+// one after another): made and ended on the thread that drives the job, never inside
+// another StageTimer of the same job (Error(internal): the stages' sums would count the
+// inner one twice).
 class StageTimer {
  public:
   StageTimer(Job& job, const std::string& stage);
@@ -180,6 +183,8 @@ class Job {
   std::mutex mutex_;
   std::exception_ptr error_;
   std::vector<std::unique_ptr<StageStats>> stages_;
+  friend class StageTimer;
+  const StageStats* timed_stage_ = nullptr;  // the StageTimer open now (driving thread only)
   std::atomic<int64_t> last_progress_ns_{0};
   std::mutex progress_mutex_;  // hook calls in order, each at least the one before
   double progress_from_ = 0, progress_to_ = 1, progress_reported_ = 0;

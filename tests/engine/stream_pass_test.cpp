@@ -183,5 +183,27 @@ TEST(StreamPass, ItemBiggerThanTheBudgetFailsUpFront) {
   EXPECT_THROW(run_stream_pass(job, pass), Error);
 }
 
+// A stage's seconds, CPU and busy time are its own: stages time one after another,
+// and one timed inside another is a programming error, caught where it happens.
+TEST(StageTimer, StagesTimeOneAfterAnotherAndNeverNest) {
+  Governor governor(1 << 20, 0);
+  Job job(governor, {}, {.threads = 1});
+  {
+    StageTimer outer(job, "load");
+    try {
+      StageTimer inner(job, "weld");
+      FAIL() << "a stage timed inside another";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.kind(), ErrorKind::internal);
+      EXPECT_NE(std::string(e.what()).find("\"weld\" timed inside stage \"load\""), std::string::npos) << e.what();
+    }
+  }
+  { StageTimer again(job, "weld"); }  // after the outer one ended: fine
+  { StageTimer load(job, "load"); }   // a stage timed twice adds up
+  std::vector<std::string> names;
+  for (const StageStats* s : job.stages()) names.push_back(s->name);
+  EXPECT_EQ(names, (std::vector<std::string>{"load", "weld"}));
+}
+
 }  // namespace
 }  // namespace qemflow::engine
