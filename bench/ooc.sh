@@ -9,6 +9,8 @@
 #   bench/ooc.sh build /tmp/qemflow-ooc 50M:512M 200M:4G      (the defaults)
 #   SIMPLIFY_ARGS="--charge-from 2" bench/ooc.sh ...           (extra simplify arguments,
 #                                                              the CSV's last column)
+#   REPORTS=DIR bench/ooc.sh ...     also keep each run's --report JSON (patch phases, stages,
+#                                    decimator work) as DIR/report-FACES-BUDGET.json
 #
 # Every file it makes lives in WORK_DIR and is deleted at exit.
 set -euo pipefail
@@ -51,5 +53,9 @@ parts = [f"{s['name']} {s['seconds']:.1f} s ({s['cpu_seconds'] / s['seconds']:.2
          for s in r["stages"] if s["seconds"] >= 0.05]
 print("stages: " + ", ".join(parts), file=sys.stderr)
 PY
+  if [ -n "${REPORTS:-}" ]; then
+    mkdir -p "$REPORTS"
+    cp "$WORK/report.json" "$REPORTS/report-$FACES-$BUDGET.json"
+  fi
   rm -f "$WORK/in.ply" "$WORK/out.ply"
 done
