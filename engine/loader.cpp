@@ -1242,13 +1242,9 @@ class Loader {
     }
     timer.reset();
     weld_in_memory(positions, std::move(weld_order_lease));
-    if (options_.degrees) {
-      count_degrees_from_input(vertex_count);
-      timer.emplace(job_, "load");
-      reopen_input_past_vertices();
-    } else {
-      timer.emplace(job_, "load");
-    }
+    if (options_.degrees) count_degrees_from_input(vertex_count);
+    timer.emplace(job_, "load");
+    if (options_.degrees) reopen_input_past_vertices();
     const uint32_t record_size = choose_block_layout();
     // A PLY's face count counts polygons: an input with quads or larger polygons has
     // more triangles than that, and resident blocks sized by it overflow. Its faces are
