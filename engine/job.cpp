@@ -152,7 +152,7 @@ void Job::progress_span(double from, double to) {
 }
 
 StageTimer::StageTimer(Job& job, const std::string& stage)
-    : job_(job), stage_(job.stage(stage)), start_(job.activity().totals()), cpu_start_(process_cpu_seconds()) {
+    : job_(job), stage_(job.stage(stage)), start_(job.activity().totals()) {
   if (job.timed_stage_) {
     throw Error(ErrorKind::internal, "stage \"" + stage + "\" timed inside stage \"" + job.timed_stage_->name + "\"");
   }
@@ -163,7 +163,7 @@ StageTimer::~StageTimer() {
   job_.timed_stage_ = nullptr;
   const Activity::Totals end = job_.activity().totals();
   stage_.seconds += end.wall_seconds - start_.wall_seconds;
-  stage_.cpu_seconds += process_cpu_seconds() - cpu_start_;
+  stage_.cpu_seconds += end.process_cpu_seconds - start_.process_cpu_seconds;
   stage_.io_busy_seconds += end.io_busy_seconds - start_.io_busy_seconds;
   stage_.compute_busy_seconds += end.compute_busy_seconds - start_.compute_busy_seconds;
   stage_.overlap_seconds += end.overlap_seconds - start_.overlap_seconds;

@@ -127,7 +127,6 @@ class StageTimer {
   Job& job_;
   StageStats& stage_;
   Activity::Totals start_;
-  double cpu_start_;
 };
 
 class Job {

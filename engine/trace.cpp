@@ -50,8 +50,8 @@ Activity::Totals Activity::totals() const {
   t.wall_seconds = std::chrono::duration<double>(last_ - start_).count();
   t.io_busy_seconds = io_;
   t.compute_busy_seconds = compute_;
-  t.compute_thread_seconds =
-      std::max(0.0, process_cpu_seconds() - cpu_start_ - io_cpu_.load(std::memory_order_relaxed));
+  t.process_cpu_seconds = process_cpu_seconds() - cpu_start_;
+  t.compute_thread_seconds = std::max(0.0, t.process_cpu_seconds - io_cpu_.load(std::memory_order_relaxed));
   t.overlap_seconds = both_;
   return t;
 }

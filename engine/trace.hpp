@@ -53,6 +53,7 @@ class Activity {
     // summary line prints it as a whole percentage of threads x wall, no finer.
     double compute_thread_seconds = 0;
     double overlap_seconds = 0;       // both at once
+    double process_cpu_seconds = 0;   // the process's CPU since the job began, every thread's
   };
   Totals totals() const;
 
