@@ -1345,12 +1345,13 @@ void PatchDecimator::prepare(const EdgeKey* cut, bool near_owned_only) {
       nv, [&](size_t v) { return (vflag_[v] & kCandidate) != 0; }, [&](size_t total) { candidates_.resize(total); },
       [&](size_t vi, size_t rank) {
         const uint32_t v = static_cast<uint32_t>(vi);
-        vflag_[v] &= ~kCandidate;  // parallel_select has asked its last about v
         const uint32_t w = partner_[v];
         uint32_t shared = 0;
         for (uint32_t c : corners_of(v)) shared += contains(fv_[c / 3], w);
         candidates_[rank] = {lme_key(v), v, w, shared, (vflag_[v] & kOwned) != 0, true};
       });
+  // Cleared after the selection, whose test must not change under it.
+  parallel_over(candidates_.size(), [&](size_t i) { vflag_[candidates_[i].keep] &= ~kCandidate; }, 4096);
   trust_dist_.clear();
   if (untrusted_count_ > 0) {
     // Distances now, in the mesh the round's collapses start from: they decide which
