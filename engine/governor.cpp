@@ -154,8 +154,22 @@ Governor::Owner* Governor::owner_record(const std::string& owner) {
   return &it->second;
 }
 
+void Governor::set_reclaimable(ReclaimableMemory* memory) {
+  std::lock_guard lock(mutex_);
+  reclaimable_ = memory;
+}
+
+void Governor::make_room(uint64_t bytes) {
+  if (!reclaimable_) return;
+  const uint64_t left = capacity() - in_use_ - std::min(bytes, capacity() - in_use_);
+  const uint64_t held = reclaimable_->held();
+  if (held > left) reclaimable_->reclaim(held - left);
+}
+
 Lease Governor::grant(Owner* owner, uint64_t bytes, uint64_t asked) {
+  make_room(bytes);
   in_use_ += bytes;
+  in_use_now_.store(in_use_, std::memory_order_relaxed);
   peak_ = std::max(peak_, in_use_);
   auto& s = owner->stats;
   s.current += bytes;
@@ -268,6 +282,7 @@ void Governor::give_back(void* owner, uint64_t bytes) {
   uint64_t now = 0;
   std::unique_lock lock(mutex_);
   in_use_ -= bytes;
+  in_use_now_.store(in_use_, std::memory_order_relaxed);
   static_cast<Owner*>(owner)->stats.current -= bytes;
   now = in_use_;
   notify_after_release(lock);  // unlocks
@@ -283,7 +298,9 @@ bool Governor::take_more(void* owner, uint64_t bytes) {
       ++record->stats.denials;
       return false;
     }
+    make_room(bytes);
     in_use_ += bytes;
+    in_use_now_.store(in_use_, std::memory_order_relaxed);
     peak_ = std::max(peak_, in_use_);
     record->stats.current += bytes;
     record->stats.peak = std::max(record->stats.peak, record->stats.current);

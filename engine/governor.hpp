@@ -37,6 +37,19 @@ namespace qemflow::engine {
 
 class Governor;
 
+// Memory the process holds outside any lease that it can give back on demand: big
+// buffers freed by a stage and kept for its next allocations (retained_buffers.hpp).
+// A governor with one registered (set_reclaimable) counts what it holds as in use at
+// every grant: before it grants, it has the holder give back what the grant would not
+// leave room for. So leases plus held memory stay within the capacity after every
+// grant; between grants, what is held only grows into room the leases leave.
+class ReclaimableMemory {
+ public:
+  virtual ~ReclaimableMemory() = default;
+  virtual uint64_t held() const = 0;           // bytes held now
+  virtual void reclaim(uint64_t bytes) = 0;    // gives back at least `bytes`, where it can
+};
+
 class Lease {
  public:
   Lease() = default;
@@ -106,6 +119,12 @@ class Governor {
   uint64_t baseline() const { return baseline_; }
   uint64_t capacity() const { return budget_ - baseline_; }  // what leases may hold
   uint64_t in_use() const;
+  // in_use() without the lock (a value it held a moment ago): for a ReclaimableMemory
+  // deciding whether to hold more, which must not take the lock.
+  uint64_t in_use_now() const { return in_use_now_.load(std::memory_order_relaxed); }
+  // Registers `memory` (nullptr: none), which must outlive its registration; grants
+  // then reclaim from it (under the governor's lock: `memory` must never take it).
+  void set_reclaimable(ReclaimableMemory* memory);
   uint64_t peak_in_use() const;
   uint64_t available() const;
 
@@ -167,6 +186,7 @@ class Governor {
   };
   Owner* owner_record(const std::string& owner);  // under lock
   Lease grant(Owner* owner, uint64_t bytes, uint64_t asked);  // under lock
+  void make_room(uint64_t bytes);                              // under lock, before a grant
   Lease grant_when_free(const std::string& owner, uint64_t min, uint64_t max, bool wait,
                         const std::function<bool()>& stop, std::function<void()>* on_available,
                         const std::function<uint64_t(uint64_t)>* share = nullptr);
@@ -190,6 +210,8 @@ class Governor {
   mutable std::mutex mutex_;
   std::condition_variable released_;
   uint64_t in_use_ = 0;
+  std::atomic<uint64_t> in_use_now_{0};  // in_use_, for in_use_now()
+  ReclaimableMemory* reclaimable_ = nullptr;
   uint64_t peak_ = 0;
   std::map<std::string, Owner> owners_;
   std::list<Waiter> waiters_;

@@ -4,15 +4,20 @@
 // engine::huge_page_advice_from() bytes up (its own mapping, at or above the mmap
 // threshold) is advised huge pages before it is touched, so each patch's big
 // std::vectors fault in 2 MiB at a time without a change of type. Otherwise one
-// relaxed load more per allocation. Kept out of the engine library so a host program
-// embedding qemflow keeps its own operator new.
+// relaxed load more per allocation. While an engine::RetainedBuffers scope is open, big
+// buffers freed are kept for its next big allocations (engine/retained_buffers.hpp).
+// Kept out of the engine library so a host program embedding qemflow keeps its own
+// operator new.
 #include <cstdlib>
 #include <new>
 
 #include "engine/process_memory.hpp"
+#include "engine/retained_buffers.hpp"
 
 void* operator new(std::size_t size) {
   if (size == 0) size = 1;
+  // A big buffer an engine::RetainedBuffers scope kept: its pages are in memory already.
+  if (void* kept = qemflow::engine::take_retained_buffer(size)) return kept;
   void* p;
   // As the standard's operator new: call the new handler until malloc succeeds or
   // there is none.
@@ -26,5 +31,9 @@ void* operator new(std::size_t size) {
   return p;
 }
 
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete(void* p) noexcept {
+  if (!qemflow::engine::retain_buffer(p)) std::free(p);
+}
+void operator delete(void* p, std::size_t) noexcept {
+  if (!qemflow::engine::retain_buffer(p)) std::free(p);
+}

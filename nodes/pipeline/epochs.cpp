@@ -23,6 +23,7 @@
 
 #include "config/size.hpp"
 #include "engine/process_memory.hpp"
+#include "engine/retained_buffers.hpp"
 #include "util/error.hpp"
 #include "util/morton.hpp"
 #include "util/parallel_fill.hpp"
@@ -1708,6 +1709,8 @@ struct Runner {
     const std::string stage = "epoch " + std::to_string(stats.ooc_epochs + 1);
     const bool first_pass = stats.ooc_epochs == 0 && !candidates;
     uint64_t faces_passed = 0;
+    // The patches' big buffers, freed, serve the next ones (engine/retained_buffers.hpp).
+    const engine::RetainedBuffers retained(job.governor());
     for (uint32_t p = 0; p < patches; ++p) {
       if (owner_faces[p] == 0) continue;
       std::vector<PatchPart> todo(owner_parts[p].rbegin(), owner_parts[p].rend());
@@ -1734,6 +1737,9 @@ struct Runner {
                               : removed_progress(state.faces - pass_removed),
                    stage);
     }
+    const engine::RetainedBuffers::Counts reuse = retained.counts();
+    stats.reused_buffers += reuse.reused;
+    stats.reused_buffer_bytes += reuse.reused_bytes;
     if (next) finish_state(job, scratch, *next);
     return total;
   }

@@ -122,6 +122,9 @@ struct OocStats {
   // per stop of its BFS at vertices whose fans were not read yet (epochs.hpp).
   uint64_t gather_reads = 0;
   uint64_t patch_splits = 0;         // a patch part halved because it did not fit its lease
+  // Big allocations of the passes served by buffers an earlier patch freed, and their
+  // bytes (engine/retained_buffers.hpp; 0 without the CLI's operator new).
+  uint64_t reused_buffers = 0, reused_buffer_bytes = 0;
   int max_rings = 0;
   uint64_t in_core_faces = 0;        // faces when the run finished in core (0: never)
   uint64_t in_core_vertices = 0;     // their distinct vertices (in_core_finish_bytes)

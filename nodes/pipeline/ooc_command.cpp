@@ -119,6 +119,8 @@ nlohmann::json run_ooc_job(engine::Governor& shared, const OocJob& command, cons
     report["halo_redos"] = st.halo_redos;
     report["gather_reads"] = st.gather_reads;
     report["patch_splits"] = st.patch_splits;
+    report["reused_buffers"] = st.reused_buffers;
+    report["reused_buffer_bytes"] = st.reused_buffer_bytes;
     report["halo_rings"] = st.max_rings;
     report["in_core_faces"] = st.in_core_faces;
     report["in_core_vertices"] = st.in_core_vertices;
