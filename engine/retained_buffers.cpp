@@ -16,8 +16,8 @@ namespace qemflow::engine {
 namespace {
 
 // Fixed tables, not containers: the hooks run inside operator new and delete, where a
-// container's own allocation would call them again. A buffer beyond a full table is
-// freed as usual (kept), or handed out uncounted (lent: none is then handed out).
+// container's own allocation would call them again. While `kept` is full a freed buffer
+// goes back to the OS as usual; while `lent` is full no kept buffer is handed out.
 constexpr size_t kEntries = 512;
 struct Kept {
   void* p;

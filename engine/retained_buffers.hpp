@@ -50,7 +50,7 @@ class RetainedBuffers final : public ReclaimableMemory {
     uint64_t kept_bytes = 0, lent_bytes = 0;
     uint64_t reused = 0;     // allocations served from kept buffers
     uint64_t reused_bytes = 0;
-    uint64_t unmapped = 0;   // kept buffers unmapped to make room (reclaim, a full table)
+    uint64_t unmapped = 0;   // kept buffers unmapped to make room for a grant (reclaim)
   };
   Counts counts() const;
 

@@ -34,6 +34,4 @@ void* operator new(std::size_t size) {
 void operator delete(void* p) noexcept {
   if (!qemflow::engine::retain_buffer(p)) std::free(p);
 }
-void operator delete(void* p, std::size_t) noexcept {
-  if (!qemflow::engine::retain_buffer(p)) std::free(p);
-}
+void operator delete(void* p, std::size_t) noexcept { operator delete(p); }
