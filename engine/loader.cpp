@@ -1987,6 +1987,12 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
     FrameHeader header;
   };
   size_t next = 0;
+  // The frames after the one being read, up to kReadAheadBytes, are asked of the kernel
+  // (ScratchStore::will_need): a gather's frames lie scattered over a state the page
+  // cache may not hold, and one pread at a time left the disk idle between them.
+  constexpr uint64_t kReadAheadBytes = uint64_t(32) << 20;
+  size_t advised = 0;      // frames[.. advised) asked for
+  uint64_t advised_ahead = 0;  // their bytes after frames[next - 1]
   FramePool own_pool;
   FramePool& kept = pool ? *pool : own_pool;
   using Kept = FramePool::Kept;
@@ -2014,6 +2020,16 @@ void for_each_frame(Job& job, ScratchStore& scratch, const char* stage, const ch
   pass.read = [&](FrameItem& item, Lease& lease) {
     if (next == frames.size()) return false;
     item.ref = frames[next++];
+    if (advised < next) {
+      advised = next;
+      advised_ahead = 0;
+    } else {
+      advised_ahead -= item.ref.bytes;
+    }
+    for (; advised < frames.size() && advised_ahead < kReadAheadBytes; ++advised) {
+      scratch.will_need(frames[advised].file, frames[advised].offset, frames[advised].bytes);
+      advised_ahead += frames[advised].bytes;
+    }
     const std::string where = "frame " + std::to_string(item.ref.file) + "@" + std::to_string(item.ref.offset);
     if (item.ref.bytes < frame_header_bytes) throw Error(ErrorKind::internal, where + ": shorter than its header");
     if (taken) {

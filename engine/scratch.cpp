@@ -581,14 +581,25 @@ void ScratchStore::finalize(uint32_t id) {
   if (std::rename(from.c_str(), path_of(f).c_str()) != 0) io_failure(from, "rename", errno);
 }
 
-void ScratchStore::read(uint32_t id, uint64_t offset, void* out, size_t size) {
-  File& f = file(id);
+int ScratchStore::open_for_reading(File& f) {
   if (!f.final) throw Error(ErrorKind::internal, "scratch: read of unfinished " + f.name);
   if (f.fd < 0) {
     // Read-write: discard punches holes through it.
     f.fd = ::open(path_of(f).c_str(), O_RDWR | O_CLOEXEC);
     if (f.fd < 0) io_failure(path_of(f), "open", errno);
   }
+  return f.fd;
+}
+
+void ScratchStore::will_need(uint32_t id, uint64_t offset, size_t size) {
+  File& f = file(id);
+  if (!f.final || f.removed) return;
+  (void)::posix_fadvise(open_for_reading(f), off_t(offset), off_t(size), POSIX_FADV_WILLNEED);
+}
+
+void ScratchStore::read(uint32_t id, uint64_t offset, void* out, size_t size) {
+  File& f = file(id);
+  open_for_reading(f);
   char* p = static_cast<char*>(out);
   size_t left = size;
   while (left > 0) {

@@ -240,6 +240,11 @@ class ScratchStore {
   // CPU-s against 0.09 into pages just freed). Advice: a file system without holes
   // keeps the bytes. I/O thread only.
   void discard(uint32_t file, uint64_t offset, size_t size);
+  // Bytes [offset, offset + size) of a finalized file will be read soon: the kernel
+  // starts reading those not in the page cache now, without waiting for them, so that
+  // scattered frames are read many at a time rather than one pread after another.
+  // Advice only. I/O thread only.
+  void will_need(uint32_t file, uint64_t offset, size_t size);
   void finalize(uint32_t file);
   void remove(uint32_t file);
 
@@ -264,6 +269,7 @@ class ScratchStore {
   // Sets the codec the choice names and keeps the choice (the report's).
   void record_choice(CodecChoice choice);
   File& file(uint32_t id);
+  int open_for_reading(File& f);  // its descriptor, opened on first use
   // free_bytes() with `others` (the other stores' outstanding claims) taken off.
   uint64_t free_bytes_beside(uint64_t others);
 

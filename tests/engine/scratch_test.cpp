@@ -1,10 +1,14 @@
 #include "engine/scratch.hpp"
 
 #include <gtest/gtest.h>
+#include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/statvfs.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstring>
+#include <thread>
 #include <algorithm>
 #include <numeric>
 
@@ -324,6 +328,48 @@ TEST(ScratchStore, DiscardedPagesGoAndTheRestOfTheFileStays) {
   EXPECT_EQ(got.substr(2 * page), bytes.substr(2 * page));
   if (got.substr(page, page) == bytes.substr(page, page)) GTEST_SKIP() << "this file system keeps discarded bytes";
   EXPECT_EQ(got.substr(page, page), std::string(page, '\0'));
+}
+
+// How many of a file's pages the page cache holds (mincore over a mapping: no fault).
+size_t resident_pages(const std::filesystem::path& path, size_t bytes) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return 0;
+  void* map = ::mmap(nullptr, bytes, PROT_READ, MAP_SHARED, fd, 0);
+  ::close(fd);
+  if (map == MAP_FAILED) return 0;
+  const size_t page = size_t(::sysconf(_SC_PAGESIZE)), pages = (bytes + page - 1) / page;
+  std::vector<unsigned char> in(pages);
+  const bool ok = ::mincore(map, bytes, in.data()) == 0;
+  ::munmap(map, bytes);
+  return ok ? size_t(std::count_if(in.begin(), in.end(), [](unsigned char c) { return c & 1; })) : 0;
+}
+
+// will_need is advice, but it must reach the kernel: a frame's pages dropped from the
+// page cache come back without a read; a file not finalized, or removed, is left alone.
+TEST(ScratchStore, WillNeedBringsAFramesPagesBackIntoThePageCache) {
+  TempDir tmp;
+  ScratchStore store(tmp.path(), 64 << 20);
+  const uint32_t f = store.create_file("state-0");
+  const std::string bytes(4 << 20, 'x');
+  store.append(f, bytes.data(), bytes.size());
+  EXPECT_NO_THROW(store.will_need(f, 0, bytes.size()));
+  store.finalize(f);
+  const auto path = store.dir() / "state-0";
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  ASSERT_GE(fd, 0);
+  ::fdatasync(fd);  // dirty pages cannot be dropped
+  ::posix_fadvise(fd, 0, 0, POSIX_FADV_DONTNEED);
+  ::close(fd);
+  const size_t pages = bytes.size() / size_t(::sysconf(_SC_PAGESIZE));
+  if (resident_pages(path, bytes.size()) > pages / 2) GTEST_SKIP() << "the page cache kept the file's pages";
+  const uint64_t read_before = store.bytes_read();
+  store.will_need(f, 0, bytes.size());
+  for (int i = 0; i < 200 && resident_pages(path, bytes.size()) < pages; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  EXPECT_EQ(resident_pages(path, bytes.size()), pages);
+  EXPECT_EQ(store.bytes_read(), read_before);
+  store.remove(f);
+  EXPECT_NO_THROW(store.will_need(f, 0, bytes.size()));
 }
 
 // Two jobs of one host on one scratch disk: each store's up-front check takes off what
