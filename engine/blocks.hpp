@@ -298,6 +298,9 @@ class FramePool {
 };
 
 using FrameUse = std::function<void(const FrameHeader&, Bytes& records, Lease& lease)>;
+// Reads `frames` in order on the I/O thread; the next 32 MiB of them are asked of the
+// kernel ahead of the reads (ScratchStore::will_need), so frames scattered over a file
+// the page cache does not hold arrive many at a time.
 // `read_once`: each frame's pages go back to the OS once it is read (ScratchStore::
 // discard), so the writes that follow reuse them rather than fault in fresh ones, and
 // no dirty page of a frame done with waits to be written back.

@@ -1490,6 +1490,24 @@ struct Runner {
   // the next pass starts from them, so a split is found once, not every epoch.
   std::vector<std::vector<PatchPart>> owner_parts;
 
+  // The part that runs after the current one (none at a pass's end): once the current
+  // part is gathered, its owned runs are asked of the kernel (advise_next_gather), so
+  // the disk reads them while this part decimates rather than while the next one waits.
+  std::optional<PatchPart> next_part;
+
+  void advise_next_gather(const MeshState& state) {
+    if (!next_part) return;
+    std::vector<FrameRef> frames;
+    for (const RunRead& r : owned_runs(state, *next_part)) frames.push_back(state.chunks[r.chunk].frame);
+    next_part.reset();
+    job.io().submit(
+        "advise next gather",
+        [this, frames = std::move(frames)] {
+          for (const FrameRef& f : frames) scratch.will_need(f.file, f.offset, f.bytes);
+        },
+        [](std::exception_ptr) {});  // advice: a failed one costs only the time it would have saved
+  }
+
   // The least budget the in-core finish is known to need (0: none known), named by a
   // patch's refusal when it is more than the patch's.
   uint64_t finish_minimum = 0;
@@ -1598,6 +1616,7 @@ struct Runner {
       job.check();
       Gathered g;
       std::optional<PatchInput> built = gather_and_build(state, part, rings, lease.bytes(), g, clock);
+      advise_next_gather(state);
       stats.gathered_faces_total += g.found_faces;
       if (g.owned_faces == 0) return true;  // a region without owned faces
       if (g.over_limit) {
@@ -1694,6 +1713,14 @@ struct Runner {
     return {low, high};
   }
 
+  // The part a pass runs after owner p's parts `todo` (run from the back) are done.
+  std::optional<PatchPart> first_part_after(uint32_t p, const std::vector<PatchPart>& todo) const {
+    if (!todo.empty()) return todo.back();
+    for (uint32_t q = p + 1; q < patches; ++q)
+      if (owner_faces[q] != 0 && !owner_parts[q].empty()) return owner_parts[q].front();
+    return std::nullopt;
+  }
+
   // One pass over the patches: each runs `plan` under `params`, summarizes under
   // `summary` and exports its owned faces into `next` (unless `candidates` is given:
   // then it only collects its exact-cut candidates).
@@ -1718,6 +1745,7 @@ struct Runner {
       while (!todo.empty()) {
         PatchPart part = std::move(todo.back());
         todo.pop_back();
+        next_part = first_part_after(p, todo);
         if (run_part(state, next, part, plan, params, summary, candidates, needed, total)) {
           ran.push_back(std::move(part));
           continue;
