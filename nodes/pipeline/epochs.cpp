@@ -1713,12 +1713,36 @@ struct Runner {
     return {low, high};
   }
 
-  // The part a pass runs after owner p's parts `todo` (run from the back) are done.
-  std::optional<PatchPart> first_part_after(uint32_t p, const std::vector<PatchPart>& todo) const {
+  // The part a pass runs after the parts `todo` (run from the back) of the owner at
+  // `order[i]` are done.
+  std::optional<PatchPart> first_part_after(size_t i, const std::vector<uint32_t>& order,
+                                            const std::vector<PatchPart>& todo) const {
     if (!todo.empty()) return todo.back();
-    for (uint32_t q = p + 1; q < patches; ++q)
-      if (owner_faces[q] != 0 && !owner_parts[q].empty()) return owner_parts[q].front();
+    for (size_t j = i + 1; j < order.size(); ++j)
+      if (!owner_parts[order[j]].empty()) return owner_parts[order[j]].front();
     return std::nullopt;
+  }
+
+  // The owners with faces, those whose chunks were written last first (by the mean
+  // index of their chunks in the state, which is the order they were written in).
+  // Why: a state larger than the page cache loses its oldest pages first; a pass that
+  // read the owners in the order they were written would read each chunk just after
+  // its pages were evicted, where this order reads the ones still cached first. Each
+  // pass writes in the order it runs, so the next one runs the other way round. The
+  // order changes what is read when, not what a patch holds.
+  std::vector<uint32_t> owners_newest_first(const MeshState& state) const {
+    std::vector<double> index_sum(patches, 0.0);
+    std::vector<uint64_t> chunks(patches, 0);
+    for (size_t i = 0; i < state.chunks.size(); ++i) {
+      index_sum[state.chunks[i].meta.owner] += double(i);
+      ++chunks[state.chunks[i].meta.owner];
+    }
+    std::vector<uint32_t> order;
+    for (uint32_t p = 0; p < patches; ++p)
+      if (owner_faces[p] != 0) order.push_back(p);
+    auto mean = [&](uint32_t p) { return index_sum[p] / double(chunks[p]); };
+    std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return mean(a) > mean(b); });
+    return order;
   }
 
   // One pass over the patches: each runs `plan` under `params`, summarizes under
@@ -1738,14 +1762,15 @@ struct Runner {
     uint64_t faces_passed = 0;
     // The patches' big buffers, freed, serve the next ones (engine/retained_buffers.hpp).
     const engine::RetainedBuffers retained(job.governor());
-    for (uint32_t p = 0; p < patches; ++p) {
-      if (owner_faces[p] == 0) continue;
+    const std::vector<uint32_t> order = owners_newest_first(state);
+    for (size_t i = 0; i < order.size(); ++i) {
+      const uint32_t p = order[i];
       std::vector<PatchPart> todo(owner_parts[p].rbegin(), owner_parts[p].rend());
       std::vector<PatchPart> ran;
       while (!todo.empty()) {
         PatchPart part = std::move(todo.back());
         todo.pop_back();
-        next_part = first_part_after(p, todo);
+        next_part = first_part_after(i, order, todo);
         if (run_part(state, next, part, plan, params, summary, candidates, needed, total)) {
           ran.push_back(std::move(part));
           continue;
