@@ -86,14 +86,34 @@ void Trace::register_thread() {
   thread_id();
 }
 
+bool Trace::is_fine(const Event& e) { return e.patch == kNoPatch && e.dur < kWholeSpanUs; }
+
+bool Trace::make_room(bool fine) {
+  if (fine && fine_seen_++ % fine_stride_ != 0) return false;
+  if (events_.size() < max_events_) return true;
+  // Full: every other fine event kept so far goes, and from now on one fine event in
+  // twice as many is kept, so the buffer covers the whole run at a coarser grain.
+  size_t kept = 0, fine_rank = 0;
+  for (const Event& e : events_)
+    if (!is_fine(e) || fine_rank++ % 2 == 0) events_[kept++] = e;
+  const size_t thinned = events_.size() - kept;
+  events_.resize(kept);
+  dropped_ += thinned;
+  if (thinned > 0) fine_stride_ *= 2;
+  if (events_.size() < max_events_ && (!fine || (fine_seen_ - 1) % fine_stride_ == 0)) return true;
+  return false;
+}
+
 void Trace::span(const char* name, double start_us, double end_us, uint64_t bytes, uint32_t patch) {
   if (!enabled()) return;
+  const Event event{name, start_us, end_us - start_us, bytes, 0, patch};
   std::lock_guard lock(mutex_);
-  if (events_.size() >= max_events_) {
+  if (!make_room(is_fine(event))) {
     ++dropped_;
     return;
   }
-  events_.push_back({name, start_us, end_us - start_us, bytes, thread_id(), patch});
+  events_.push_back(event);
+  events_.back().tid = thread_id();
 }
 
 void Trace::counter(const char* name, double value) {
@@ -103,7 +123,7 @@ void Trace::counter(const char* name, double value) {
   auto& last = last_counter_us_[name];
   if (last != 0 && now - last < 200) return;
   last = now;
-  if (events_.size() >= max_events_) {
+  if (!make_room(true)) {
     ++dropped_;
     return;
   }
@@ -163,8 +183,8 @@ void Trace::write(const std::filesystem::path& path) const {
                    static_cast<unsigned long long>(e.value), patch);
     }
   }
-  std::fprintf(f, "\n],\"otherData\":{\"dropped_events\":%llu}}\n",
-               static_cast<unsigned long long>(dropped_.load()));
+  std::fprintf(f, "\n],\"otherData\":{\"dropped_events\":%llu,\"fine_events_kept_one_in\":%llu}}\n",
+               static_cast<unsigned long long>(dropped_.load()), static_cast<unsigned long long>(fine_stride_));
   if (std::ferror(f)) throw Error(ErrorKind::resource, path.string() + ": cannot write the trace");
 }
 

@@ -91,8 +91,12 @@ class Trace {
   // `patch`: the patch (owner) the span worked on, an arg of the event unless kNoPatch.
   void span(const char* name, double start_us, double end_us, uint64_t bytes = 0, uint32_t patch = kNoPatch);
   // Rate-limited to one sample per counter per 200 µs (the last value always wins at
-  // the next sample).
+  // the next sample). A fine event, thinned like short spans when the buffer fills.
   void counter(const char* name, double value);
+  // Spans of a patch's phase or of at least kWholeSpanUs are whole-run events, kept
+  // while the buffer has room; the rest (a frame's decode, a write, counters) are fine
+  // events, thinned when it is full (make_room).
+  static constexpr double kWholeSpanUs = 10'000;
   uint64_t dropped() const { return dropped_; }
   size_t size() const;
 
@@ -111,6 +115,13 @@ class Trace {
     uint32_t patch;  // kNoPatch: none
   };
   uint32_t thread_id();  // under lock
+  static bool is_fine(const Event& e);
+  // Under lock: whether an event may be added now. A full buffer drops every other fine
+  // event it holds and keeps one fine event in twice as many from then on
+  // (fine_stride_), so a long run's trace covers it all, thinned, instead of stopping.
+  bool make_room(bool fine);
+  uint64_t fine_seen_ = 0;    // fine events offered, kept or not
+  uint64_t fine_stride_ = 1;  // one fine event in fine_stride_ is kept
   const size_t max_events_;
   Clock::time_point start_;
   mutable std::mutex mutex_;

@@ -131,5 +131,44 @@ TEST(Trace, PatchArgAndTheEventCap) {
   EXPECT_EQ(text.find("\"patch\":4294967295"), std::string::npos) << text;
 }
 
+// A run longer than the buffer keeps its whole-run spans (a patch's phases, long
+// spans) and a thinned sample of the fine ones from its start to its end, rather than
+// its first events only.
+TEST(Trace, AFullBufferThinsTheFineEventsAndKeepsThePhases) {
+  Trace trace(64);
+  constexpr int kFine = 10'000;
+  for (int i = 0; i < kFine; ++i) {
+    const double t = 100.0 * i;
+    trace.span("decode", t, t + 5);
+    if (i % 1000 == 0) trace.span("rounds", t, t + 50, 0, uint32_t(i / 1000));  // a phase
+    if (i % 2500 == 0) trace.span("load", t, t + Trace::kWholeSpanUs);           // a long span
+  }
+  EXPECT_LE(trace.size(), 64u);
+  EXPECT_EQ(trace.size() + trace.dropped(), size_t(kFine + 10 + 4));
+  const auto path = std::filesystem::temp_directory_path() / ("qemflow_trace_thin_" + std::to_string(::getpid()) + ".json");
+  trace.write(path);
+  std::ifstream in(path);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::filesystem::remove(path);
+  size_t phases = 0, longs = 0, fine = 0;
+  double last_fine = -1;
+  for (size_t at = text.find("\"name\":"); at != std::string::npos; at = text.find("\"name\":", at + 1)) {
+    const size_t ts = text.find("\"ts\":", at);
+    const std::string_view name = std::string_view(text).substr(at);
+    if (name.starts_with("\"name\":\"rounds\"")) ++phases;
+    if (name.starts_with("\"name\":\"load\"")) ++longs;
+    if (name.starts_with("\"name\":\"decode\"")) {
+      ++fine;
+      last_fine = std::stod(text.substr(ts + 5));
+    }
+  }
+  EXPECT_EQ(phases, 10u);
+  EXPECT_EQ(longs, 4u);
+  EXPECT_GT(fine, 16u);
+  // The fine sample reaches the run's last tenth.
+  EXPECT_GT(last_fine, 0.9 * 100.0 * kFine);
+  EXPECT_NE(text.find("\"fine_events_kept_one_in\":"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace qemflow::engine
