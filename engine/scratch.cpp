@@ -597,12 +597,6 @@ void ScratchStore::will_need(uint32_t id, uint64_t offset, size_t size) {
   (void)::posix_fadvise(open_for_reading(f), off_t(offset), off_t(size), POSIX_FADV_WILLNEED);
 }
 
-void ScratchStore::dont_need(uint32_t id, uint64_t offset, size_t size) {
-  File& f = file(id);
-  if (!f.final || f.removed) return;
-  (void)::posix_fadvise(open_for_reading(f), off_t(offset), off_t(size), POSIX_FADV_DONTNEED);
-}
-
 void ScratchStore::read(uint32_t id, uint64_t offset, void* out, size_t size) {
   File& f = file(id);
   open_for_reading(f);

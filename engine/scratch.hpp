@@ -245,11 +245,6 @@ class ScratchStore {
   // scattered frames are read many at a time rather than one pread after another.
   // Advice only. I/O thread only.
   void will_need(uint32_t file, uint64_t offset, size_t size);
-  // Bytes [offset, offset + size) of a finalized file are not expected to be read again
-  // soon: the kernel drops their clean pages from the page cache, which leaves room for
-  // pages that will be. The bytes stay on disk (a read still finds them, from the disk).
-  // Advice only. I/O thread only.
-  void dont_need(uint32_t file, uint64_t offset, size_t size);
   void finalize(uint32_t file);
   void remove(uint32_t file);
 

@@ -1508,42 +1508,6 @@ struct Runner {
         [](std::exception_ptr) {});  // advice: a failed one costs only the time it would have saved
   }
 
-  // Per owner: the owners whose chunks its gathers read in the last pass (sorted,
-  // unique; empty when unknown) and in this one. A pass expects each owner to read what
-  // it read in the last (the halos move little between passes), and once every owner
-  // expected to read a chunk has run, the chunk's pages leave the page cache
-  // (drop_read_owners), making room for the state the pass writes, which the next pass
-  // reads. A read the guess missed comes from the disk: the time changes, never the bytes.
-  std::vector<std::vector<uint32_t>> owners_read_last, owners_read_now;
-
-  // Counts, per owner q, the owners in `order` expected to read q's chunks; none when
-  // some owner's reads are unknown (the first pass, or a new owner).
-  std::vector<uint32_t> expected_readers(const std::vector<uint32_t>& order) const {
-    std::vector<uint32_t> readers(patches, 0);
-    for (uint32_t p : order)
-      if (p >= owners_read_last.size() || owners_read_last[p].empty()) return std::vector<uint32_t>(patches, 0);
-    for (uint32_t p : order)
-      for (uint32_t q : owners_read_last[p]) ++readers[q];
-    return readers;
-  }
-
-  // Owner p's parts have all run: the chunks of every owner whose expected readers have
-  // now all run leave the page cache.
-  void drop_read_owners(uint32_t p, std::vector<uint32_t>& readers,
-                        const std::vector<std::vector<FrameRef>>& owner_frames) {
-    if (p >= owners_read_last.size()) return;
-    std::vector<FrameRef> frames;
-    for (uint32_t q : owners_read_last[p])
-      if (readers[q] > 0 && --readers[q] == 0) frames.insert(frames.end(), owner_frames[q].begin(), owner_frames[q].end());
-    if (frames.empty()) return;
-    job.io().submit(
-        "drop read chunks",
-        [this, frames = std::move(frames)] {
-          for (const FrameRef& f : frames) scratch.dont_need(f.file, f.offset, f.bytes);
-        },
-        [](std::exception_ptr) {});  // advice, as advise_next_gather's
-  }
-
   // The least budget the in-core finish is known to need (0: none known), named by a
   // patch's refusal when it is more than the patch's.
   uint64_t finish_minimum = 0;
@@ -1606,10 +1570,7 @@ struct Runner {
         release_memory(g.vertices);
         if (!first) return std::nullopt;
       }
-      for (const RunRead& r : reads) {
-        read[r.chunk] |= r.runs;
-        owners_read_now[part.owner].push_back(state.chunks[r.chunk].meta.owner);
-      }
+      for (const RunRead& r : reads) read[r.chunk] |= r.runs;
       read_runs(job, scratch, state, reads, read, part, g, limit_bytes, planned_bytes, unique_vertices, cache);
       ++stats.gather_reads;
       clock.charge(kGather);
@@ -1802,10 +1763,6 @@ struct Runner {
     // The patches' big buffers, freed, serve the next ones (engine/retained_buffers.hpp).
     const engine::RetainedBuffers retained(job.governor());
     const std::vector<uint32_t> order = owners_newest_first(state);
-    std::vector<uint32_t> readers = expected_readers(order);
-    std::vector<std::vector<FrameRef>> owner_frames(patches);
-    for (const Chunk& c : state.chunks) owner_frames[c.meta.owner].push_back(c.frame);
-    owners_read_now.assign(patches, {});
     for (size_t i = 0; i < order.size(); ++i) {
       const uint32_t p = order[i];
       std::vector<PatchPart> todo(owner_parts[p].rbegin(), owner_parts[p].rend());
@@ -1828,17 +1785,11 @@ struct Runner {
         ++stats.patch_splits;
       }
       owner_parts[p] = std::move(ran);
-      drop_read_owners(p, readers, owner_frames);
       faces_passed += owner_faces[p];
       job.progress(first_pass ? first_pass_progress(faces_passed, state.faces)
                               : removed_progress(state.faces - pass_removed),
                    stage);
     }
-    for (auto& owners : owners_read_now) {
-      std::sort(owners.begin(), owners.end());
-      owners.erase(std::unique(owners.begin(), owners.end()), owners.end());
-    }
-    owners_read_last.swap(owners_read_now);
     const engine::RetainedBuffers::Counts reuse = retained.counts();
     stats.reused_buffers += reuse.reused;
     stats.reused_buffer_bytes += reuse.reused_bytes;

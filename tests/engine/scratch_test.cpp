@@ -372,34 +372,6 @@ TEST(ScratchStore, WillNeedBringsAFramesPagesBackIntoThePageCache) {
   EXPECT_NO_THROW(store.will_need(f, 0, bytes.size()));
 }
 
-// dont_need is advice too, but it must reach the kernel: a read frame's clean pages leave
-// the page cache, and its bytes are still read back whole (from the disk).
-TEST(ScratchStore, DontNeedDropsAFramesPagesAndKeepsItsBytes) {
-  TempDir tmp;
-  ScratchStore store(tmp.path(), 64 << 20);
-  const uint32_t f = store.create_file("state-0");
-  std::string bytes(4 << 20, 'x');
-  for (size_t i = 0; i < bytes.size(); i += 4096) bytes[i] = char('a' + i / 4096 % 26);
-  store.append(f, bytes.data(), bytes.size());
-  EXPECT_NO_THROW(store.dont_need(f, 0, bytes.size()));  // not finalized: left alone
-  store.finalize(f);
-  const auto path = store.dir() / "state-0";
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  ASSERT_GE(fd, 0);
-  ::fdatasync(fd);  // dirty pages cannot be dropped
-  ::close(fd);
-  std::string got(bytes.size(), '?');
-  store.read(f, 0, got.data(), got.size());
-  const size_t pages = bytes.size() / size_t(::sysconf(_SC_PAGESIZE));
-  if (resident_pages(path, bytes.size()) < pages) GTEST_SKIP() << "the page cache did not keep the file's pages";
-  store.dont_need(f, 0, bytes.size());
-  EXPECT_LT(resident_pages(path, bytes.size()), pages / 2);
-  store.read(f, 0, got.data(), got.size());
-  EXPECT_EQ(got, bytes);
-  store.remove(f);
-  EXPECT_NO_THROW(store.dont_need(f, 0, bytes.size()));
-}
-
 // Two jobs of one host on one scratch disk: each store's up-front check takes off what
 // the others still expect to write (statvfs sees only what they wrote), so the second
 // of two stores that would each fit alone but not together is refused, naming the
