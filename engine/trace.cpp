@@ -100,8 +100,8 @@ bool Trace::make_room(bool fine) {
   events_.resize(kept);
   dropped_ += thinned;
   if (thinned > 0) fine_stride_ *= 2;
-  if (events_.size() < max_events_ && (!fine || (fine_seen_ - 1) % fine_stride_ == 0)) return true;
-  return false;
+  // Room now, and a fine event still on the coarser grid.
+  return events_.size() < max_events_ && (!fine || (fine_seen_ - 1) % fine_stride_ == 0);
 }
 
 void Trace::span(const char* name, double start_us, double end_us, uint64_t bytes, uint32_t patch) {
